@@ -1,0 +1,53 @@
+"""The ``codeslam`` command: a thin shell over the Python API.
+
+Each sub-command lives in its own module and registers itself on :data:`app`; heavy imports (torch,
+the network) happen inside the command functions so that ``codeslam --help`` is fast.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+
+from codeslam.cli.app import app, console_error
+from codeslam.errors import CodeSLAMError
+
+# Sub-command modules, imported for their registration side effect on `app`.
+from codeslam.cli import info as _info  # noqa: E402,F401  isort: skip
+from codeslam.cli import evaluate as _evaluate  # noqa: E402,F401  isort: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the typer app; turn user errors into one line on stderr and exit code 2.
+
+    ``--debug`` anywhere on the command line (or ``CODESLAM_DEBUG=1``) shows the full traceback instead.
+    """
+    args = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in args or os.environ.get("CODESLAM_DEBUG") == "1"
+    args = [a for a in args if a != "--debug"]
+    try:
+        app(args=args, prog_name="codeslam", standalone_mode=False)
+    except CodeSLAMError as e:
+        if debug:
+            raise
+        console_error(str(e))
+        return 2
+    except KeyboardInterrupt:
+        console_error("interrupted")
+        return 130
+    except SystemExit as e:  # typer/click exit codes (e.g. --help)
+        return int(e.code or 0)
+    except Exception as e:  # click usage errors and anything unexpected
+        import click
+
+        if isinstance(e, click.exceptions.ClickException):
+            e.show()
+            return e.exit_code
+        if isinstance(e, click.exceptions.Abort):
+            console_error("aborted")
+            return 1
+        if debug:
+            raise
+        console_error(f"internal error: {type(e).__name__}: {e} (run with --debug for the traceback)")
+        return 1
+    return 0

@@ -1,0 +1,64 @@
+"""The interface every dataset reader implements."""
+
+from __future__ import annotations
+
+import abc
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from codeslam.data.frame import Frame
+from codeslam.geometry.camera import PinholeCamera
+
+
+class Sequence(abc.ABC):
+    """A random-access sequence of :class:`Frame`, read lazily from disk.
+
+    Subclasses parse their list files in ``__init__`` (so a malformed folder fails at once with a
+    :class:`~codeslam.errors.DatasetError`) and read images only in ``__getitem__``.
+    """
+
+    #: short format name used by ``--format`` and the registry
+    format_name: str = ""
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    @staticmethod
+    @abc.abstractmethod
+    def detect(root: Path) -> bool:
+        """Whether ``root`` looks like a folder of this format (cheap: file names only)."""
+
+    @property
+    @abc.abstractmethod
+    def camera(self) -> PinholeCamera:
+        """The (undistorted) pinhole camera of every frame."""
+
+    @property
+    @abc.abstractmethod
+    def timestamps(self) -> np.ndarray:
+        """(N,) float64 seconds of the frames."""
+
+    @property
+    @abc.abstractmethod
+    def has_depth(self) -> bool: ...
+
+    @property
+    @abc.abstractmethod
+    def gt_poses(self) -> torch.Tensor | None:
+        """(N, 4, 4) float64 ground-truth ``T_wc`` at the frame timestamps, or None."""
+
+    @abc.abstractmethod
+    def __len__(self) -> int: ...
+
+    @abc.abstractmethod
+    def __getitem__(self, i: int) -> Frame: ...
+
+    @property
+    def has_pose(self) -> bool:
+        return self.gt_poses is not None
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]

@@ -1,0 +1,36 @@
+"""The typed record every dataset reader returns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from codeslam.geometry.camera import PinholeCamera
+
+
+@dataclass
+class Frame:
+    """One RGB(-D) frame.
+
+    Attributes:
+        timestamp: seconds.
+        image: (3, H, W) float32 RGB in [0, 1].
+        camera: the ideal pinhole camera of ``image`` (already undistorted).
+        depth: (H, W) float32 z-depth in metres, 0 where invalid; ``None`` when the dataset has no depth.
+        pose: (4, 4) float64 ``T_wc`` (camera-to-world); ``None`` when the dataset has no ground truth.
+        index: position of the frame in its sequence.
+    """
+
+    timestamp: float
+    image: torch.Tensor
+    camera: PinholeCamera
+    depth: torch.Tensor | None = None
+    pose: torch.Tensor | None = None
+    index: int = 0
+
+    @property
+    def gray(self) -> torch.Tensor:
+        """(1, H, W) luminance in [0, 1] (ITU-R BT.601 weights)."""
+        w = torch.tensor([0.299, 0.587, 0.114], dtype=self.image.dtype).view(3, 1, 1)
+        return (self.image * w).sum(0, keepdim=True)

@@ -1,0 +1,1 @@
+"""Trajectories and their evaluation (ATE, RPE, drift against travelled distance)."""
