@@ -115,5 +115,5 @@ def write_tum(path: str | Path, traj: Trajectory) -> None:
     rows = tum_rows_from_poses(traj.poses)
     with atomic_write(path, "w") as f:
         f.write("# timestamp tx ty tz qx qy qz qw (camera-to-world)\n")
-        for t, r in zip(traj.timestamps, rows):
+        for t, r in zip(traj.timestamps, rows, strict=True):
             f.write(f"{t:.6f} " + " ".join(f"{v:.9f}" for v in r) + "\n")
