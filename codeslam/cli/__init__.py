@@ -26,7 +26,11 @@ def main(argv: list[str] | None = None) -> int:
     debug = "--debug" in args or os.environ.get("CODESLAM_DEBUG") == "1"
     args = [a for a in args if a != "--debug"]
     try:
-        app(args=args, prog_name="codeslam", standalone_mode=False)
+        # standalone mode: typer itself reports usage errors (exit 2) and handles --help (exit 0) by
+        # raising SystemExit; exceptions raised inside a command propagate to us.
+        app(args=args, prog_name="codeslam")
+    except SystemExit as e:
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
     except CodeSLAMError as e:
         if debug:
             raise
@@ -35,17 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         console_error("interrupted")
         return 130
-    except SystemExit as e:  # typer/click exit codes (e.g. --help)
-        return int(e.code or 0)
-    except Exception as e:  # click usage errors and anything unexpected
-        import click
-
-        if isinstance(e, click.exceptions.ClickException):
-            e.show()
-            return e.exit_code
-        if isinstance(e, click.exceptions.Abort):
-            console_error("aborted")
-            return 1
+    except Exception as e:  # anything unexpected is a bug: still one line unless --debug
         if debug:
             raise
         console_error(f"internal error: {type(e).__name__}: {e} (run with --debug for the traceback)")

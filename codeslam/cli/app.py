@@ -19,3 +19,11 @@ def console_error(msg: str) -> None:
     """Print one line ``codeslam: error: MSG`` on stderr."""
     msg = " ".join(str(msg).split())  # one line, whatever the exception text held
     print(f"codeslam: error: {msg}", file=sys.stderr)
+
+
+@app.callback()
+def _root() -> None:
+    """CodeSLAM: compact learned depth codes, dense N-frame SfM and monocular SLAM.
+
+    Add --debug to any command to see the full traceback of an error.
+    """
