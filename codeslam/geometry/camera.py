@@ -96,3 +96,65 @@ def canonical_camera(width: int = 128, height: int = 96, hfov_deg: float = 60.0)
     to it before it meets the network (the paper's intrinsics correction, Sec. 5.3)."""
     f = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
     return PinholeCamera(fx=f, fy=f, cx=(width - 1) / 2.0, cy=(height - 1) / 2.0, width=width, height=height)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Pure functions of the ideal pinhole model. ``params`` is a tensor (..., 4) = (fx, fy, cx, cy), e.g.
+# ``PinholeCamera.params()``. ``params`` broadcasts against the points' leading dims with the ordinary
+# (right-aligned) torch rules: for points (B, N, 3) and one camera per batch element pass ``params[:, None]``
+# (B, 1, 4); a single camera (4,) broadcasts against anything. Points with z <= 0 project to meaningless
+# (possibly non-finite) pixels: callers mask them (cf. ``codeslam.constants.MIN_DEPTH``).
+# --------------------------------------------------------------------------------------------------------------
+
+
+def _intrinsics(params: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(..., 4) -> four (...,) tensors fx, fy, cx, cy."""
+    return params[..., 0], params[..., 1], params[..., 2], params[..., 3]
+
+
+def project(xyz: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    """The paper's pi (Sec. 3, Eq. 5): camera-frame points (..., 3) -> pixels uv (..., 2),
+    ``u = fx x / z + cx``, ``v = fy y / z + cy``."""
+    fx, fy, cx, cy = _intrinsics(params)
+    x, y, z = xyz.unbind(-1)
+    return torch.stack([fx * x / z + cx, fy * y / z + cy], dim=-1)
+
+
+def project_jac(xyz: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    """d pi(x) / d x of :func:`project` (the paper's Eqs. 7-9 factor): (..., 3) -> (..., 2, 3)
+    ``[[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]]``."""
+    fx, fy, _, _ = _intrinsics(params)
+    x, y, z = xyz.unbind(-1)
+    inv_z = 1.0 / z
+    zero = torch.zeros_like(x * fx)
+    row_u = torch.stack([fx * inv_z + zero, zero, -fx * x * inv_z * inv_z], dim=-1)
+    row_v = torch.stack([zero, fy * inv_z + zero, -fy * y * inv_z * inv_z], dim=-1)
+    return torch.stack([row_u, row_v], dim=-2)
+
+
+def unproject(uv: torch.Tensor, depth: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    """The paper's pi^-1(u, d) (Eq. 5): pixels (..., 2) and z-depth (...) -> camera-frame points (..., 3)
+    ``d ((u - cx)/fx, (v - cy)/fy, 1)``."""
+    return unproject_jac_depth(uv, params) * depth.unsqueeze(-1)
+
+
+def unproject_jac_depth(uv: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
+    """d pi^-1(u, d) / d d of :func:`unproject` (the paper's Eq. 9 factor): the ray ``((u - cx)/fx,
+    (v - cy)/fy, 1)`` with unit z, shape (..., 3)."""
+    fx, fy, cx, cy = _intrinsics(params)
+    u, v = uv.unbind(-1)
+    x = (u - cx) / fx
+    y = (v - cy) / fy
+    return torch.stack([x, y, torch.ones_like(x)], dim=-1)
+
+
+def pixel_grid(
+    height: int, width: int, dtype: torch.dtype = torch.float32, device: torch.device | str | None = None
+) -> torch.Tensor:
+    """Pixel-centre coordinates (H, W, 2): ``grid[v, u] = (u, v)`` with u = x = column, v = y = row,
+    so ``grid[0, 0] = (0, 0)`` is the centre of the top-left pixel."""
+    v, u = torch.meshgrid(
+        torch.arange(height, dtype=dtype, device=device), torch.arange(width, dtype=dtype, device=device),
+        indexing="ij",
+    )
+    return torch.stack([u, v], dim=-1)

@@ -1,0 +1,111 @@
+"""Image utilities for dense alignment: greyscale, per-pixel gradients, pyramids and sub-pixel lookup.
+
+Pixel coordinates follow the package convention: (u, v) = (column, row), (0, 0) is the centre of the top-left
+pixel. A pyramid level k of an (H, W) image has size (H / 2^k, W / 2^k) (sizes divisible by 2^(levels-1) are
+expected) and the camera ``camera.scaled(0.5 ** k)`` (see :func:`pyramid_cameras`): both pyramids below
+downsample with the pixel-centre convention ``c' = (c + 0.5) / 2 - 0.5``.
+"""
+
+from __future__ import annotations
+
+import kornia
+import torch
+import torch.nn.functional as F
+
+from codeslam.geometry.camera import PinholeCamera
+
+
+def rgb_to_gray(img: torch.Tensor) -> torch.Tensor:
+    """(B, 3, H, W) RGB -> (B, 1, H, W) luma with the ITU-R 601 weights (0.299, 0.587, 0.114)."""
+    return kornia.color.rgb_to_grayscale(img)
+
+
+def image_gradients(img: torch.Tensor) -> torch.Tensor:
+    """(B, C, H, W) -> (B, C, 2, H, W): dI/du and dI/dv in intensity per pixel (normalised Sobel, which is
+    exact on a linear ramp; replicate padding halves the derivative on the one-pixel border)."""
+    return kornia.filters.spatial_gradient(img, mode="sobel", order=1, normalized=True)
+
+
+def image_pyramid(img: torch.Tensor, levels: int) -> list[torch.Tensor]:
+    """(B, C, H, W) -> ``levels`` tensors, finest first; level k is (B, C, H/2^k, W/2^k), Gaussian-blurred
+    before each 2x downsampling (the paper uses 4 levels)."""
+    return kornia.geometry.transform.build_pyramid(img, max_level=levels, border_type="reflect", align_corners=False)
+
+
+def depth_pyramid(depth: torch.Tensor, levels: int) -> list[torch.Tensor]:
+    """(B, 1, H, W) z-depth with 0 = invalid -> ``levels`` tensors, finest first. Each coarser pixel is the mean
+    of its valid (finite, positive) 2x2 children, or 0 if none is valid, so holes never drag depths to 0.
+    Written by hand because kornia/torch pooling has no masked mean."""
+    valid = (torch.isfinite(depth) & (depth > 0)).to(depth.dtype)
+    level = torch.where(valid > 0, depth, torch.zeros_like(depth))
+    out = [level]
+    for _ in range(levels - 1):
+        total = F.avg_pool2d(level * valid, kernel_size=2, stride=2)  # (B, 1, H/2, W/2), sum / 4
+        count = F.avg_pool2d(valid, kernel_size=2, stride=2)  # fraction of valid children
+        valid = (count > 0).to(depth.dtype)
+        level = torch.where(count > 0, total / count.clamp_min(0.25), torch.zeros_like(total))
+        out.append(level)
+    return out
+
+
+def pyramid_cameras(camera: PinholeCamera, levels: int) -> list[PinholeCamera]:
+    """The camera of every level of :func:`image_pyramid` / :func:`depth_pyramid`, finest first."""
+    return [camera.scaled(0.5**k) for k in range(levels)]
+
+
+def pixels_to_grid(uv: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """Pixel coordinates (..., 2) -> ``grid_sample`` coordinates in [-1, 1] for ``align_corners=True``
+    (pixel 0 -> -1, pixel W-1 -> +1)."""
+    scale = uv.new_tensor([2.0 / max(width - 1, 1), 2.0 / max(height - 1, 1)])
+    return uv * scale - 1.0
+
+
+def inside_image(uv: torch.Tensor, height: int, width: int, margin: float = 0.0) -> torch.Tensor:
+    """(..., 2) -> (...) bool: ``-margin <= u <= W - 1 + margin`` and likewise for v (and finite)."""
+    u, v = uv.unbind(-1)
+    return (u >= -margin) & (u <= width - 1 + margin) & (v >= -margin) & (v <= height - 1 + margin)
+
+
+def _grid_sample(img: torch.Tensor, uv: torch.Tensor, mode: str, padding_mode: str) -> torch.Tensor:
+    """img (B, C, H, W), uv (B, *P, 2) -> (B, C, *P)."""
+    B, C, H, W = img.shape
+    pts_shape = uv.shape[1:-1]
+    grid = pixels_to_grid(uv.reshape(B, 1, -1, 2).to(img.dtype), H, W)  # (B, 1, N, 2)
+    out = F.grid_sample(img, grid, mode=mode, padding_mode=padding_mode, align_corners=True)  # (B, C, 1, N)
+    return out.reshape((B, C) + pts_shape)
+
+
+def bilinear_sample(
+    img: torch.Tensor, uv: torch.Tensor, padding_mode: str = "zeros"
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Bilinear lookup ``img[uv]`` (the paper's square brackets, Eq. 6).
+
+    img (B, C, H, W), uv (B, N, 2) pixel coordinates (any number of point dims (B, *P, 2) works)
+    -> values (B, C, N), valid (B, N) bool: all four bilinear neighbours lie inside the image,
+    i.e. 0 <= u <= W-1 and 0 <= v <= H-1. Outside, values follow ``padding_mode`` of ``grid_sample``.
+    """
+    return _grid_sample(img, uv, "bilinear", padding_mode), inside_image(uv, img.shape[-2], img.shape[-1])
+
+
+def nearest_sample(
+    img: torch.Tensor, uv: torch.Tensor, padding_mode: str = "zeros"
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Nearest-neighbour lookup, shapes as :func:`bilinear_sample`; valid = the rounded pixel is inside, i.e.
+    -0.5 <= u <= W-0.5 and likewise for v. Never mixes values (for depth)."""
+    return _grid_sample(img, uv, "nearest", padding_mode), inside_image(uv, img.shape[-2], img.shape[-1], 0.5)
+
+
+def sample_with_gradient(
+    img: torch.Tensor, grad: torch.Tensor, uv: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Bilinear lookup of an image and its precomputed gradients in one ``grid_sample`` call.
+
+    img (B, C, H, W), grad (B, C, 2, H, W) from :func:`image_gradients`, uv (B, N, 2)
+    -> values (B, C, N), gradients (B, C, 2, N) (d/du, d/dv), valid (B, N) as :func:`bilinear_sample`.
+    """
+    B, C, H, W = img.shape
+    stacked = torch.cat([img, grad.reshape(B, 2 * C, H, W)], dim=1)  # (B, 3C, H, W)
+    out, valid = bilinear_sample(stacked, uv)  # (B, 3C, *P)
+    values = out[:, :C]
+    grads = out[:, C:].reshape((B, C, 2) + out.shape[2:])
+    return values, grads, valid

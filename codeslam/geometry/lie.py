@@ -1,0 +1,214 @@
+"""SO(3) and SE(3) as batched pure functions on rotation matrices and 4x4 transforms.
+
+Conventions (used by the whole package):
+
+* A tangent vector of SE(3) is ``xi = (rho, phi)``, shape (..., 6): translation part first, rotation part second.
+* Perturbations are on the LEFT: an increment ``xi`` updates ``T <- exp(xi) T`` unless a function says otherwise
+  (:func:`se3_act_jac_pose_right` is the one right-perturbation exception).
+* ``exp((rho, phi)) = [[R, J_l(phi) rho], [0, 1]]`` with ``R = exp(phi^)`` and ``J_l`` the SO(3) left Jacobian, so
+  ``d/d xi exp(xi) T p |_0 = [I, -(T p)^]``; the adjoint is ``Ad_T = [[R, t^ R], [0, R]]`` and satisfies
+  ``T exp(xi) T^-1 = exp(Ad_T xi)``.
+* ``T_ab`` maps points of frame b into frame a.
+
+Angles below ``codeslam.constants.SMALL_ANGLE`` use Taylor expansions, and the two Jacobian coefficients that
+cancel catastrophically use their series below ``SERIES_ANGLE``; each closed form is evaluated on a safe angle so
+that autograd stays finite everywhere (autograd through ``so3_exp``/``se3_exp`` at any angle, 0 included, equals
+the analytic Jacobians). Written by hand rather than taken from kornia/theseus because we need the (rho, phi)
+order with left perturbations, plain tensors and batched Jacobians in one consistent place.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from codeslam.constants import SERIES_ANGLE, SMALL_ANGLE
+from codeslam.geometry.quaternion import rotmat_to_quat_xyzw
+
+# ---------------------------------------------------------------------------------------------------- so(3)
+
+
+def hat(w: torch.Tensor) -> torch.Tensor:
+    """(..., 3) -> (..., 3, 3) skew-symmetric matrix with ``hat(w) x = w x x``."""
+    x, y, z = w.unbind(-1)
+    o = torch.zeros_like(x)
+    return torch.stack([o, -z, y, z, o, -x, -y, x, o], dim=-1).reshape(w.shape + (3,))
+
+
+def vee(W: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) skew-symmetric -> (..., 3), the inverse of :func:`hat` (uses the antisymmetric part)."""
+    return 0.5 * torch.stack(
+        [W[..., 2, 1] - W[..., 1, 2], W[..., 0, 2] - W[..., 2, 0], W[..., 1, 0] - W[..., 0, 1]], dim=-1
+    )
+
+
+def _angle(phi: torch.Tensor, threshold: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(..., 3) -> theta^2, series (bool: theta < threshold) and a safe theta (1 where series) for the closed
+    forms, all (...). Evaluating the closed forms on the safe theta keeps autograd finite in the unused branch."""
+    theta2 = (phi * phi).sum(-1)
+    series = theta2 < threshold**2
+    theta = torch.sqrt(torch.where(series, torch.ones_like(theta2), theta2))
+    return theta2, series, theta
+
+
+def _so3_coeffs(phi: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(..., 3) -> A = sin(t)/t, B = (1 - cos t)/t^2, C = (t - sin t)/t^3, each (..., 1, 1)."""
+    theta2, small, theta = _angle(phi, SMALL_ANGLE)
+    half = torch.sin(0.5 * theta)
+    A = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)
+    B = torch.where(small, 0.5 - theta2 / 24.0, 2.0 * half * half / (theta * theta))  # 1 - cos = 2 sin^2(t/2)
+    t2, series, t = _angle(phi, SERIES_ANGLE)
+    C_series = 1 / 6 - t2 * (1 / 120 - t2 * (1 / 5040 - t2 * (1 / 362880 - t2 / 39916800)))
+    C = torch.where(series, C_series, (t - torch.sin(t)) / (t * t * t))
+    return A[..., None, None], B[..., None, None], C[..., None, None]
+
+
+def _eye(like: torch.Tensor, n: int = 3) -> torch.Tensor:
+    return torch.eye(n, dtype=like.dtype, device=like.device)
+
+
+def so3_exp(phi: torch.Tensor) -> torch.Tensor:
+    """Rodrigues' formula: (..., 3) rotation vector -> (..., 3, 3) rotation ``I + A phi^ + B phi^2``."""
+    A, B, _ = _so3_coeffs(phi)
+    W = hat(phi)
+    return _eye(phi) + A * W + B * (W @ W)
+
+
+def so3_log(R: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) rotation -> (..., 3) rotation vector with angle in [0, pi].
+
+    Goes through the unit quaternion (Shepperd's method, stable for every rotation), then
+    ``phi = 2 atan2(|q_v|, q_w) q_v / |q_v|``, which stays accurate near 0 and near pi (where the
+    trace/antisymmetric-part formula loses the axis).
+    """
+    q = rotmat_to_quat_xyzw(R)  # (..., 4), w >= 0
+    qv, qw = q[..., :3], q[..., 3:]
+    s2 = (qv * qv).sum(-1, keepdim=True)
+    small = s2 < SMALL_ANGLE**2
+    s = torch.sqrt(torch.where(small, torch.ones_like(s2), s2))
+    # small: 2 atan(s/w)/s = (2/w)(1 - s^2/(3 w^2)) + O(s^4); qw ~ 1 there.
+    w_safe = torch.where(small, qw, torch.ones_like(qw))
+    scale = torch.where(small, 2.0 / w_safe * (1.0 - s2 / (3.0 * w_safe * w_safe)), 2.0 * torch.atan2(s, qw) / s)
+    return scale * qv
+
+
+def so3_left_jacobian(phi: torch.Tensor) -> torch.Tensor:
+    """(..., 3) -> (..., 3, 3) left Jacobian ``J_l = I + B phi^ + C phi^2``: ``exp(phi + d) ~= exp(J_l d) exp(phi)``."""
+    _, B, C = _so3_coeffs(phi)
+    W = hat(phi)
+    return _eye(phi) + B * W + C * (W @ W)
+
+
+def so3_left_jacobian_inv(phi: torch.Tensor) -> torch.Tensor:
+    """(..., 3) -> (..., 3, 3) ``J_l^-1 = I - phi^/2 + (1/t^2 - cot(t/2)/(2t)) phi^2`` (defined for t < 2 pi)."""
+    t2, series, t = _angle(phi, SERIES_ANGLE)
+    D_series = 1 / 12 + t2 * (1 / 720 + t2 * (1 / 30240 + t2 * (1 / 1209600 + t2 / 47900160)))
+    D = torch.where(series, D_series, 1.0 / (t * t) - torch.cos(0.5 * t) / (2.0 * t * torch.sin(0.5 * t)))
+    D = D[..., None, None]
+    W = hat(phi)
+    return _eye(phi) - 0.5 * W + D * (W @ W)
+
+
+# ---------------------------------------------------------------------------------------------------- SE(3)
+
+
+def _rt(T: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(..., 4, 4) -> R (..., 3, 3), t (..., 3)."""
+    return T[..., :3, :3], T[..., :3, 3]
+
+
+def se3_from_rt(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """R (..., 3, 3), t (..., 3) -> T (..., 4, 4); R and t broadcast against each other."""
+    batch = torch.broadcast_shapes(R.shape[:-2], t.shape[:-1])
+    top = torch.cat([R.expand(batch + (3, 3)), t.expand(batch + (3,)).unsqueeze(-1)], dim=-1)  # (..., 3, 4)
+    bottom = torch.zeros(batch + (1, 4), dtype=top.dtype, device=top.device)
+    bottom[..., 0, 3] = 1.0
+    return torch.cat([top, bottom], dim=-2)
+
+
+def se3_exp(xi: torch.Tensor) -> torch.Tensor:
+    """(..., 6) tangent ``(rho, phi)`` -> (..., 4, 4) transform ``[[exp(phi^), J_l(phi) rho], [0, 1]]``."""
+    rho, phi = xi[..., :3], xi[..., 3:]
+    A, B, C = _so3_coeffs(phi)
+    W = hat(phi)
+    W2 = W @ W
+    R = _eye(xi) + A * W + B * W2
+    V = _eye(xi) + B * W + C * W2  # = so3_left_jacobian(phi), sharing the coefficients
+    return se3_from_rt(R, (V @ rho.unsqueeze(-1)).squeeze(-1))
+
+
+def se3_log(T: torch.Tensor) -> torch.Tensor:
+    """(..., 4, 4) transform -> (..., 6) tangent ``(rho, phi)`` with ``phi = log(R)``, ``rho = J_l(phi)^-1 t``."""
+    R, t = _rt(T)
+    phi = so3_log(R)
+    rho = (so3_left_jacobian_inv(phi) @ t.unsqueeze(-1)).squeeze(-1)
+    return torch.cat([rho, phi], dim=-1)
+
+
+def se3_inverse(T: torch.Tensor) -> torch.Tensor:
+    """(..., 4, 4) -> (..., 4, 4) ``[[R^T, -R^T t], [0, 1]]``."""
+    R, t = _rt(T)
+    Rt = R.transpose(-1, -2)
+    return se3_from_rt(Rt, -(Rt @ t.unsqueeze(-1)).squeeze(-1))
+
+
+def se3_compose(T_ab: torch.Tensor, T_bc: torch.Tensor) -> torch.Tensor:
+    """T_ab (..., 4, 4), T_bc (..., 4, 4) -> T_ac = T_ab T_bc (batch dims broadcast)."""
+    return T_ab @ T_bc
+
+
+def _split_points(T: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Size]:
+    """Match T's batch dims to p's leading dims. T (*b, 4, 4), p (*b', *P, 3) with len(b') = len(b) ->
+    R (*B, 3, 3), t (*B, 3), p (*B, M, 3) with B = broadcast(b, b'), M = prod(P), and the output shape."""
+    nb = T.dim() - 2
+    if p.dim() - 1 < nb:
+        raise ValueError(f"points {tuple(p.shape)} have fewer leading dims than the transforms {tuple(T.shape)}")
+    batch = torch.broadcast_shapes(T.shape[:-2], p.shape[:nb])
+    pts = p.shape[nb:-1]
+    R, t = _rt(T)
+    p_flat = p.expand(batch + pts + (3,)).reshape(batch + (-1, 3))  # (*B, M, 3)
+    return R.expand(batch + (3, 3)), t.expand(batch + (3,)), p_flat, batch + pts
+
+
+def se3_act(T: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """Transform points: ``T p = R p + t``.
+
+    Broadcasting: T (*b, 4, 4) and p (*b, *P, 3): T's batch dims are matched (torch-broadcast) against the
+    LEADING dims of p, and any further dims P of p are points sharing that transform. So T (4, 4) with p (N, 3),
+    T (B, 4, 4) with p (B, 3) (one point per transform) and T (B, 4, 4) with p (B, N, 3) or (B, H, W, 3) all
+    work. Returns (*b, *P, 3).
+    """
+    R, t, p_flat, out_shape = _split_points(T, p)
+    out = p_flat @ R.transpose(-1, -2) + t.unsqueeze(-2)  # (*B, M, 3)
+    return out.reshape(out_shape + (3,))
+
+
+def se3_act_jac_point(T: torch.Tensor) -> torch.Tensor:
+    """d (T p) / d p = R: (..., 4, 4) -> (..., 3, 3)."""
+    return T[..., :3, :3]
+
+
+def se3_act_jac_pose(T: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """LEFT perturbation: d (exp(xi) T p) / d xi at xi = 0 = ``[I, -(T p)^]``. Shapes as :func:`se3_act`;
+    returns (*b, *P, 3, 6). (The paper's Eqs. 7-8 perturb R and t separately, R <- exp(phi) R, t <- t + rho,
+    which gives ``[I, -(R p)^]``; the two differ only by the parametrisation of the increment.)"""
+    x = se3_act(T, p)  # (*b, *P, 3)
+    eye = _eye(x).expand(x.shape + (3,))
+    return torch.cat([eye, -hat(x)], dim=-1)
+
+
+def se3_act_jac_pose_right(T: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """RIGHT perturbation: d (T exp(xi) p) / d xi at xi = 0 = ``[R, -R p^]``. Shapes as :func:`se3_act`;
+    returns (*b, *P, 3, 6)."""
+    R, _, p_flat, out_shape = _split_points(T, p)
+    R_ = R.unsqueeze(-3)  # (*B, 1, 3, 3) against the M points
+    J = torch.cat([R_.expand(p_flat.shape + (3,)), -(R_ @ hat(p_flat))], dim=-1)  # (*B, M, 3, 6)
+    return J.reshape(out_shape + (3, 6))
+
+
+def se3_adjoint(T: torch.Tensor) -> torch.Tensor:
+    """(..., 4, 4) -> (..., 6, 6) ``Ad_T = [[R, t^ R], [0, R]]`` for the (rho, phi) order:
+    ``T exp(xi) T^-1 = exp(Ad_T xi)``."""
+    R, t = _rt(T)
+    top = torch.cat([R, hat(t) @ R], dim=-1)  # (..., 3, 6)
+    bottom = torch.cat([torch.zeros_like(R), R], dim=-1)  # (..., 3, 6)
+    return torch.cat([top, bottom], dim=-2)

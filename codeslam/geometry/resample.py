@@ -1,0 +1,122 @@
+"""Resampling images and depth maps between cameras: the paper's intrinsics correction and undistortion.
+
+The network only ever sees its canonical camera (``canonical_camera()``); the paper reports that its decoder
+generalises to other datasets "after correcting for camera intrinsics" (Sec. 5, Fig. 9). We correct by
+resampling: every destination pixel's ray ``K_dst^-1 (u, v, 1)`` is looked up in the source image through the
+source intrinsics (and the source's radial-tangential distortion, if any). Both cameras share the optical centre
+and axes, so a pure intrinsics change keeps every ray, and z-depth values carry over unchanged.
+
+Pixels whose ray leaves the source image (beyond its pixel footprint ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``) are
+set to 0; :func:`resample_valid_mask` returns where the result is valid. The functions work in both directions
+(source -> canonical and back). Undistortion is resampling to ``camera.without_distortion()``; a reader that
+needs both can go straight from the distorted camera to the canonical one in one interpolation.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from kornia.geometry.calibration import distort_points
+
+from codeslam.constants import ANTIALIAS_MIN_SHRINK
+from codeslam.errors import CodeSLAMError
+from codeslam.geometry.camera import PinholeCamera, pixel_grid, project, unproject_jac_depth
+from codeslam.geometry.image import bilinear_sample, inside_image, nearest_sample
+
+
+def _check(image: torch.Tensor, src: PinholeCamera, dst: PinholeCamera, what: str) -> None:
+    if image.dim() != 4:
+        raise CodeSLAMError(f"{what} must have shape (B, C, H, W), got {tuple(image.shape)}")
+    if not image.is_floating_point():
+        raise CodeSLAMError(f"{what} must be a floating-point tensor, got {image.dtype}")
+    if (image.shape[-2], image.shape[-1]) != (src.height, src.width):
+        raise CodeSLAMError(
+            f"{what} is {image.shape[-1]}x{image.shape[-2]} but its camera is {src.width}x{src.height}"
+        )
+    if dst.has_distortion:
+        raise CodeSLAMError("the destination camera of a resampling must have no distortion")
+
+
+def source_pixels(
+    src: PinholeCamera, dst: PinholeCamera, dtype: torch.dtype = torch.float32,
+    device: torch.device | str | None = None,
+) -> torch.Tensor:
+    """For every pixel of ``dst`` (undistorted), the source pixel seeing the same ray: (dst.height, dst.width, 2).
+
+    Without source distortion this is ``pi_src(pi_dst^-1(u, 1))``; with it, kornia's ``distort_points`` (the
+    OpenCV k1, k2, p1, p2, k3 model) maps the ray's normalised coordinates to the distorted source pixel.
+    """
+    grid = pixel_grid(dst.height, dst.width, dtype, device)  # (H_dst, W_dst, 2)
+    if src.has_distortion:
+        dist = torch.tensor(src.dist, dtype=dtype, device=device)
+        pts = distort_points(grid.reshape(-1, 2), src.K(dtype, device), dist, new_K=dst.K(dtype, device))
+        return pts.reshape(dst.height, dst.width, 2)
+    ray = unproject_jac_depth(grid, dst.params(dtype, device))  # (H_dst, W_dst, 3), z = 1
+    return project(ray, src.params(dtype, device))
+
+
+def resample_valid_mask(
+    src: PinholeCamera, dst: PinholeCamera, device: torch.device | str | None = None
+) -> torch.Tensor:
+    """(dst.height, dst.width) bool: the destination pixels whose ray falls inside the source image's pixel
+    footprint; :func:`resample_image` and :func:`resample_depth` write 0 everywhere else."""
+    uv = source_pixels(src, dst, torch.float64)  # on the CPU: float64 everywhere (MPS has none)
+    return inside_image(uv, src.height, src.width, margin=0.5).to(device)
+
+
+def _antialias(image: torch.Tensor, src: PinholeCamera, dst: PinholeCamera) -> tuple[torch.Tensor, PinholeCamera]:
+    """Shrink ``image`` towards dst's pixel density with an anti-aliased (triangle-filter) resize when dst is more
+    than ANTIALIAS_MIN_SHRINK times coarser, returning the shrunk image and its camera; else pass through."""
+    shrink_x, shrink_y = src.fx / dst.fx, src.fy / dst.fy
+    if max(shrink_x, shrink_y) <= ANTIALIAS_MIN_SHRINK:
+        return image, src
+    width = max(1, round(src.width / shrink_x)) if shrink_x > 1 else src.width
+    height = max(1, round(src.height / shrink_y)) if shrink_y > 1 else src.height
+    # torch's antialiased bilinear resize is an area-like pre-filter; align_corners=False matches
+    # PinholeCamera.resized's pixel-centre convention, so the shrunk image's camera is exact.
+    small = F.interpolate(image, size=(height, width), mode="bilinear", antialias=True, align_corners=False)
+    return small, src.resized(width, height)
+
+
+def resample_image(
+    image: torch.Tensor, src: PinholeCamera, dst: PinholeCamera, antialias: bool = True
+) -> torch.Tensor:
+    """Bilinear intrinsics correction of an image. (B, C, src.height, src.width) -> (B, C, dst.height, dst.width).
+
+    Pixels whose ray leaves the source image are 0 (see :func:`resample_valid_mask`). With ``antialias`` a large
+    shrink (e.g. 640x480 -> 128x96) is pre-filtered so that fine texture does not alias.
+    """
+    _check(image, src, dst, "image")
+    if antialias:
+        image, src_used = _antialias(image, src, dst)
+    else:
+        src_used = src
+    B = image.shape[0]
+    uv = source_pixels(src_used, dst, image.dtype, image.device)  # (H_dst, W_dst, 2)
+    values, _ = bilinear_sample(image, uv.expand((B,) + uv.shape), padding_mode="border")  # (B, C, H_dst, W_dst)
+    mask = resample_valid_mask(src, dst, image.device)
+    return values * mask.to(values.dtype)
+
+
+def resample_depth(depth: torch.Tensor, src: PinholeCamera, dst: PinholeCamera) -> torch.Tensor:
+    """Nearest-neighbour intrinsics correction of a z-depth map, (B, 1, src.height, src.width) ->
+    (B, 1, dst.height, dst.width). Never mixes depths across edges; invalid (0 or non-finite) stays 0, and
+    pixels whose ray leaves the source image are 0. Depth values are unchanged (same rays, same z)."""
+    _check(depth, src, dst, "depth map")
+    depth = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.zeros_like(depth))
+    B = depth.shape[0]
+    uv = source_pixels(src, dst, torch.float64).to(depth.device, depth.dtype)  # float64 on the CPU, then moved
+    values, _ = nearest_sample(depth, uv.expand((B,) + uv.shape))  # (B, 1, H_dst, W_dst)
+    mask = resample_valid_mask(src, dst, depth.device)
+    return values * mask.to(values.dtype)
+
+
+def undistort_image(image: torch.Tensor, camera: PinholeCamera) -> torch.Tensor:
+    """(B, C, H, W) image of a distorted camera -> the same-size image of ``camera.without_distortion()``
+    (bilinear; pixels whose ray leaves the original image are 0)."""
+    return resample_image(image, camera, camera.without_distortion())
+
+
+def undistort_depth(depth: torch.Tensor, camera: PinholeCamera) -> torch.Tensor:
+    """(B, 1, H, W) z-depth of a distorted camera -> that of ``camera.without_distortion()`` (nearest)."""
+    return resample_depth(depth, camera, camera.without_distortion())
