@@ -19,3 +19,7 @@ UMEYAMA_RANK_RTOL = 1e-10
 ANTIALIAS_MIN_SHRINK = 2.0
 # Floor of the network's Laplace scale b (proximity units) so that |p - mu| / b + log b stays finite.
 MIN_UNCERTAINTY = 1e-3
+# SfM: a bilinear lookup of a 0/1 validity image counts as "all four neighbours valid" above this (rounding slack).
+BILINEAR_ALL_VALID = 1.0 - 1e-6
+# SfM: floor of the Levenberg-Marquardt damping factor, so repeated decreases never underflow to 0.
+MIN_LM_DAMPING = 1e-12

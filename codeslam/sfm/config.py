@@ -1,0 +1,123 @@
+"""Configuration of dense N-frame structure from motion (paper Sec. 4.1) and its Levenberg-Marquardt solver."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+from codeslam.errors import ConfigError
+
+GRADIENT_MODES = ("sobel", "interpolant")
+
+
+@dataclass(frozen=True)
+class SfMConfig:
+    """Residuals, loss functions (paper Sec. 4.1 (i)-(v)) and the damped Gauss-Newton solver.
+
+    Residuals are normalised by their sigma before the Huber function, so the sigmas set the relative weighting of
+    the photometric and geometric terms (loss (ii)) and the Huber thresholds are in units of sigma.
+    """
+
+    # --- residuals -------------------------------------------------------------------------------------------
+    photometric: bool = True
+    """Use the photometric residual I_A[u] - (alpha I_B[w] + beta) (paper Sec. 4.1, E_pho)."""
+    geometric: bool = True
+    """Use the geometric residual (proximity of the warped point vs B's decoded proximity at w, E_geo)."""
+    affine_brightness: bool = True
+    """Estimate a per-pair affine brightness (log-gain, bias): the paper's exposure correction (Sec. 5.2)."""
+    sigma_photometric: float = 0.05
+    """Photometric noise (grey levels in [0, 1]); relative weighting (ii) against ``sigma_geometric``."""
+    sigma_geometric: float = 0.02
+    """Geometric noise in proximity units (p = a / (d + a)); relative weighting (ii)."""
+    use_uncertainty: bool = False
+    """Add the network's Laplace scales b of both views to the geometric noise: sigma^2 + 2 b_A^2 + 2 b_B^2."""
+    huber_photometric: float = 1.345
+    """Huber threshold in sigmas (loss (iii)); 1.345 keeps 95% efficiency for Gaussian noise."""
+    huber_geometric: float = 1.345
+    """Huber threshold in sigmas for the geometric residual (loss (iii))."""
+    border: float = 1.0
+    """Correspondences closer than this (pixels) to the border of B are masked (loss (i)): Sobel is unreliable there."""
+    slant_cos_min: float = 0.25
+    """Loss (iv): weight min(1, cos/slant_cos_min) with cos the angle between A's surface normal and viewing ray."""
+    occlusion_margin: float = 0.1
+    """Loss (v): a warped point more than this fraction behind B's decoded surface counts as likely occluded."""
+    occlusion_weight: float = 0.1
+    """Loss (v): weight of photometric residuals of likely-occluded pixels."""
+    occlusion_geometric: bool = True
+    """Apply loss (v) to the geometric residual too. The paper does not (a point that looks occluded may be one
+    whose depth is wrong, which the geometric term must correct), but the geometric residuals of truly occluded
+    pixels all have one sign and bias the optimum. Measured on the synthetic room with an occluding panel
+    (tests/sfm): two-frame pose error 1.4 cm -> 0.5 cm on a 25 cm baseline; 4-frame joint SfM depth-scale error
+    25% -> 8%, rotation error 0.6 -> 0.2 degrees. Set False for the paper's behaviour."""
+    gradient_mode: str = "sobel"
+    """Image gradient at w: 'sobel' (smooth, Kerl et al.) or 'interpolant' (exact slope of the bilinear lookup,
+    what autograd through the lookup gives; used to check the Jacobians against autograd)."""
+
+    # --- priors ----------------------------------------------------------------------------------------------
+    code_prior_weight: float = 1.0
+    """Weight of the VAE prior 0.5 w |c|^2 (N(0, I) on codes): keeps unobservable code directions at zero."""
+    affine_prior_sigma: tuple[float, float] = (0.2, 0.1)
+    """Gaussian prior sigmas on (log-gain, bias): keeps the normal equations definite on pairs with no overlap."""
+
+    # --- solver ----------------------------------------------------------------------------------------------
+    pyramid_levels: tuple[int, ...] = (3, 2, 1, 0)
+    """Pyramid levels visited coarse to fine (0 = full resolution), for a wider basin of convergence (Sec. 4.2).
+    All four of the network's levels: on TUM fr1_rpy (128x96, known depth, identity start) starting at level 3
+    instead of 2 took convergence from rotations of about 10 to about 27 degrees."""
+    max_iterations: tuple[int, ...] = (15, 15, 10, 10)
+    """Accepted-or-rejected LM iterations per visited level (same length as ``pyramid_levels``)."""
+    initial_damping: float = 1e-4
+    """Initial lambda of the Marquardt damping H + lambda diag(H)."""
+    damping_increase: float = 10.0
+    """Factor applied to lambda after a rejected step (cost increase, NaN/inf or non-PD system)."""
+    damping_decrease: float = 0.3
+    """Factor applied to lambda after an accepted step."""
+    max_damping: float = 1e8
+    """Stop a level when lambda grows beyond this: no descent direction can be found."""
+    min_diagonal: float = 1e-6
+    """Floor of diag(H) in the damping term, so variables with no data still get damped."""
+    relative_cost_tolerance: float = 1e-5
+    """Stop a level when an accepted step decreases the cost by less than this fraction."""
+    step_tolerance: float = 1e-7
+    """Stop a level when the step's norm falls below this."""
+
+    def __post_init__(self) -> None:
+        if not (self.photometric or self.geometric):
+            raise ConfigError("SfM config: at least one of photometric/geometric residuals must be enabled")
+        for name in ("sigma_photometric", "sigma_geometric", "huber_photometric", "huber_geometric",
+                     "slant_cos_min", "damping_increase", "max_damping"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"SfM config: {name} must be positive, got {getattr(self, name)}")
+        if not 0 < self.damping_decrease < 1 < self.damping_increase:
+            raise ConfigError("SfM config: need 0 < damping_decrease < 1 < damping_increase")
+        if self.gradient_mode not in GRADIENT_MODES:
+            raise ConfigError(f"SfM config: gradient_mode must be one of {GRADIENT_MODES}, got {self.gradient_mode!r}")
+        if len(self.pyramid_levels) != len(self.max_iterations) or not self.pyramid_levels:
+            raise ConfigError("SfM config: pyramid_levels and max_iterations must be non-empty and of equal length")
+        if any(level < 0 for level in self.pyramid_levels):
+            raise ConfigError(f"SfM config: pyramid levels must be >= 0, got {self.pyramid_levels}")
+        if any(s <= 0 for s in self.affine_prior_sigma) or len(self.affine_prior_sigma) != 2:
+            raise ConfigError("SfM config: affine_prior_sigma must be two positive numbers")
+        if self.code_prior_weight < 0 or self.occlusion_weight < 0 or self.border < 0:
+            raise ConfigError("SfM config: code_prior_weight, occlusion_weight and border must be >= 0")
+
+    @property
+    def residual_types(self) -> tuple[str, ...]:
+        """The enabled residual types in the order they are stacked: ('photometric', 'geometric')."""
+        return tuple(t for t, on in (("photometric", self.photometric), ("geometric", self.geometric)) if on)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> SfMConfig:
+        """From a (YAML) mapping of a subset of the fields; unknown keys raise ConfigError, lists become tuples."""
+        if not isinstance(d, dict):
+            raise ConfigError(f"SfM config must be a mapping, got {type(d).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ConfigError(f"unknown SfM option(s): {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        try:
+            return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        except TypeError as e:  # wrong value types surface from the comparisons in __post_init__
+            raise ConfigError(f"SfM config: {e}") from None

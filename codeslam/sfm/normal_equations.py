@@ -1,0 +1,177 @@
+"""Gauss-Newton normal equations ``H = J^T W J``, ``g = J^T W r`` of pair residuals, assembled from the compact
+Jacobians of :mod:`codeslam.sfm.residuals` without forming the dense Jacobian.
+
+Structure used (paper Sec. 4.1, linear decoder): per pixel, the Jacobian w.r.t. the code of A is a scalar times
+a row of the precomputed ``J_A = dP_A/dc_A``, ``d r / d c_A = s_A J_A[u]``, so
+
+* ``H_{c_A c_A} = J_A^T diag(sum_pairs sum_types w s_A^2) J_A``: the per-pixel weights of every pair with the same
+  A (and both residual types) are summed first, then ONE (C x N)(N x C) product per frame;
+* ``H_{c_A, pose/affine} = J_A^T (w s_A J_dense)``, ``g_{c_A} = J_A^T (w s_A r)``;
+* the geometric residual also depends on the code of B through ``J_B[v]`` (sampled at the warped pixels):
+  ``H_{c_B c_B} = J_B[v]^T diag(w) J_B[v]``, ``H_{c_A c_B} = J_A^T diag(w s_A s_B) J_B[v]``;
+* the relative-pose Jacobian maps to the absolute poses by the adjoint (see :mod:`codeslam.sfm.warp`), so the pose
+  blocks are ``Q^T (J_rel^T W J_rel) Q`` with the 8x14 map Q of each pair: the pixel sums are done once in the
+  8 local dimensions (relative pose + affine).
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+
+import torch
+
+from codeslam.sfm.keyframes import LevelData
+from codeslam.sfm.residuals import GEOMETRIC, PairTerms
+from codeslam.sfm.variables import AFFINE, CODE, POSE, BlockId, VariableLayout
+from codeslam.sfm.warp import relative_pose_jacobians
+
+
+@contextmanager
+def _timed(profile: dict | None, key: str, device: torch.device):
+    """Adds the wall time of the block to ``profile[key]`` (synchronising CUDA so the time is the kernels')."""
+    if profile is None:
+        yield
+        return
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    t0 = time.perf_counter()
+    yield
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    profile[key] = profile.get(key, 0.0) + time.perf_counter() - t0
+
+
+def local_to_absolute(poses: torch.Tensor, pairs: torch.Tensor) -> torch.Tensor:
+    """(F, 4, 4) T_wc, (P, 2) pairs -> Q (P, 8, 14): ``[xi_BA, a, b] = Q [xi_A, xi_B, a, b]`` (chain rule of
+    :func:`codeslam.sfm.warp.relative_pose_jacobians`; the affine parameters map to themselves)."""
+    P = pairs.shape[0]
+    dA, dB = relative_pose_jacobians(poses[pairs[:, 1]])  # (P, 6, 6) each
+    Q = torch.zeros(P, 8, 14, dtype=poses.dtype, device=poses.device)
+    Q[:, :6, :6] = dA
+    Q[:, :6, 6:12] = dB
+    Q[:, 6, 12] = 1.0
+    Q[:, 7, 13] = 1.0
+    return Q
+
+
+def _add(H: torch.Tensor, rows: slice, cols: slice, M: torch.Tensor, symmetric: bool) -> None:
+    """H[rows, cols] += M and, if ``symmetric`` (an off-diagonal block), H[cols, rows] += M^T."""
+    H[rows, cols] += M
+    if symmetric:
+        H[cols, rows] += M.transpose(0, 1)
+
+
+def assemble(
+    terms: PairTerms,
+    pairs: torch.Tensor,
+    poses: torch.Tensor,
+    level: LevelData,
+    layout: VariableLayout,
+    profile: dict | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """-> H (D, D), g (D,) over the free blocks of ``layout`` (D = layout.dim), in the dtype of the terms.
+
+    terms from :func:`codeslam.sfm.residuals.pair_jacobians`; pairs (P, 2); poses (F, 4, 4) at which the terms were
+    evaluated; ``level`` supplies J_A. Fixed blocks are constants: their products are skipped. ``profile`` (dict)
+    accumulates the seconds spent in the J^T W J products under 'gemm'.
+    """
+    dev, dtype = terms.r.device, terms.r.dtype
+    P, T, N = terms.r.shape
+    F_, C = level.num_frames, level.code_size
+    H = torch.zeros(layout.dim, layout.dim, dtype=dtype, device=dev)
+    g = torch.zeros(layout.dim, dtype=dtype, device=dev)
+    iA = pairs[:, 0]
+    pair_list = [(int(a), int(b)) for a, b in pairs.tolist()]  # host copy: one transfer, no per-pair syncs
+    w, r = terms.w, terms.r  # (P, T, N)
+    Jd = torch.cat([terms.J_rel, terms.J_aff], dim=-1)  # (P, T, N, 8) dense columns [xi_BA, a, b]
+    G = level.jac.reshape(F_, C, N)  # (F, C, N), J_A^T of every frame (a view)
+
+    with _timed(profile, "gemm", dev):
+        Jd_flat = Jd.reshape(P, T * N, 8)
+        H_dd = Jd_flat.transpose(1, 2) @ ((w.reshape(P, T * N, 1)) * Jd_flat)  # (P, 8, 8)
+    g_d = (Jd_flat * (w * r).reshape(P, T * N, 1)).sum(1)  # (P, 8)
+    Q = local_to_absolute(poses.to(dtype), pairs)  # (P, 8, 14)
+    H_loc = Q.transpose(1, 2) @ H_dd @ Q  # (P, 14, 14) over [pose A, pose B, affine]
+    g_loc = (Q.transpose(1, 2) @ g_d.unsqueeze(-1)).squeeze(-1)  # (P, 14)
+
+    # ---- codes of A: one product per frame over all pairs in which it is A ---------------------------------
+    code_A_free = [layout.slice(BlockId(CODE, f)) for f in range(F_)]
+    frames = sorted({a for a, _ in pair_list if code_A_free[a] is not None})  # free codes that appear as A
+    if frames:
+        ws_A = w * terms.s_A  # (P, T, N)
+        onehot = torch.nn.functional.one_hot(iA, F_).to(dtype).transpose(0, 1)  # (F, P): sums pairs per frame A
+        q = onehot @ (ws_A * terms.s_A).sum(1)  # (F, N), sum over pairs and types of w s_A^2
+        gr = onehot @ (ws_A * r).sum(1)  # (F, N), sum of w s_A r
+        M = (ws_A.unsqueeze(-1) * Jd).sum(1)  # (P, N, 8), w s_A J_dense summed over types
+        for f in frames:
+            sl = code_A_free[f]
+            with _timed(profile, "gemm", dev):
+                H[sl, sl] += (G[f] * q[f]) @ G[f].T  # J_A^T diag(q) J_A, (C, C)
+            g[sl] += G[f] @ gr[f]
+        with _timed(profile, "gemm", dev):
+            # J_A^T (w s_A J_dense), (C, 8) per pair; (M^T J_A^T)^T is the faster GEMM shape for a (C, N) J_A.
+            H_Ad = [None if code_A_free[a] is None else (M[p].T @ G[a].T).T for p, (a, _) in enumerate(pair_list)]
+
+    # ---- codes of B through the geometric residual's J_B[v] -------------------------------------------------
+    do_B = terms.JB_w is not None and GEOMETRIC in terms.types
+    if do_B:
+        tg = terms.types.index(GEOMETRIC)
+        wg, sA_g, sB_g, rg = w[:, tg], terms.s_A[:, tg], terms.s_B[:, tg], r[:, tg]  # (P, N)
+
+    # ---- scatter the per-pair blocks ------------------------------------------------------------------------
+    loc = [(0, 6), (6, 12), (12, 14)]
+    for p, (a, b) in enumerate(pair_list):
+        ids = [BlockId(POSE, a), BlockId(POSE, b), BlockId(AFFINE, p)]
+        sls = [layout.slice(i) for i in ids]
+        for (i0, i1), si in zip(loc, sls):
+            if si is None:
+                continue
+            g[si] += g_loc[p, i0:i1]
+            for (j0, j1), sj in zip(loc, sls):
+                if sj is not None:
+                    H[si, sj] += H_loc[p, i0:i1, j0:j1]
+        sA = code_A_free[a]
+        sB = layout.slice(BlockId(CODE, b))
+        if sA is not None:
+            H_Aloc = H_Ad[p] @ Q[p]  # (C, 14)
+            for (j0, j1), sj in zip(loc, sls):
+                if sj is not None:
+                    _add(H, sA, sj, H_Aloc[:, j0:j1], True)
+        if do_B and sB is not None:
+            JB = terms.JB_w[p]  # (C, N), J_B[v]^T
+            with _timed(profile, "gemm", dev):
+                H[sB, sB] += (JB * (wg[p] * sB_g[p] * sB_g[p])) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
+                H_Bd = JB @ ((wg[p] * sB_g[p]).unsqueeze(-1) * Jd[p, tg])  # (C, 8)
+                if sA is not None:
+                    _add(H, sA, sB, (G[a] * (wg[p] * sA_g[p] * sB_g[p])) @ JB.T, True)  # J_A^T diag(.) J_B[v]
+            g[sB] += JB @ (wg[p] * sB_g[p] * rg[p])
+            H_Bloc = H_Bd @ Q[p]  # (C, 14)
+            for (j0, j1), sj in zip(loc, sls):
+                if sj is not None:
+                    _add(H, sB, sj, H_Bloc[:, j0:j1], True)
+    return H, g
+
+
+def dense_jacobian(terms: PairTerms, pairs: torch.Tensor, poses: torch.Tensor, level: LevelData,
+                   layout: VariableLayout) -> torch.Tensor:
+    """The full Jacobian (P T N, D) of the stacked residuals ``r.reshape(-1)`` w.r.t. the free blocks, expanded
+    from the compact form. Memory-hungry: for tests and for comparing against autograd, never for solving."""
+    P, T, N = terms.r.shape
+    C = level.code_size
+    J = torch.zeros(P, T, N, layout.dim, dtype=terms.r.dtype, device=terms.r.device)
+    Q = local_to_absolute(poses.to(terms.r.dtype), pairs)
+    J_loc = torch.cat([terms.J_rel, terms.J_aff], dim=-1) @ Q.unsqueeze(1)  # (P, T, N, 14)
+    G = level.jac.reshape(level.num_frames, C, N).transpose(1, 2)  # (F, N, C)
+    loc = [(0, 6), (6, 12), (12, 14)]
+    for p, (a, b) in enumerate(pairs.tolist()):
+        for (i0, i1), bid in zip(loc, [BlockId(POSE, a), BlockId(POSE, b), BlockId(AFFINE, p)]):
+            sl = layout.slice(bid)
+            if sl is not None:
+                J[p, :, :, sl] += J_loc[p, :, :, i0:i1]
+        sA, sB = layout.slice(BlockId(CODE, a)), layout.slice(BlockId(CODE, b))
+        if sA is not None:
+            J[p, :, :, sA] += terms.s_A[p].unsqueeze(-1) * G[a]
+        if sB is not None and terms.JB_w is not None:
+            J[p, :, :, sB] += terms.s_B[p].unsqueeze(-1) * terms.JB_w[p].T
+    return J.reshape(P * T * N, layout.dim)

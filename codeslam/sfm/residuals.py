@@ -1,0 +1,326 @@
+"""Photometric and geometric residuals of frame pairs (paper Sec. 4.1), their loss functions and their analytic
+Jacobians, vectorised over pixels and batched over pairs.
+
+For a pair (A, B) and every pixel u of A, with ``v = w(u, c_A, T_BA)`` and ``x`` the point in B (Sec. 3):
+
+* photometric (Eq. 13 with the per-pair affine brightness of Sec. 5.2): ``r_pho = I_A[u] - (exp(a) I_B[v] + b)``;
+* geometric (Eq. 14): ``r_geo = prox_B(x_z) - P_B[v]``, the proximity of the warped point's depth in B against
+  B's decoded proximity ``P_B = prox0_B + J_B c_B`` at v. Proximity rather than depth: it is what the decoder
+  outputs (so ``P_B[v]`` is exactly linear in c_B and the network's uncertainty b is in its units), it is bounded,
+  and beyond the average depth it behaves like inverse depth, whose error is what stereo observes (Sec. 2.2).
+
+Loss functions (Sec. 4.1): (i) invalid correspondences (outside B with ``border``, behind B, invalid depth of A,
+and for the geometric term a lookup touching a hole of B's proximity) are masked and priced at the Huber
+threshold so that pushing pixels out of view does not lower the cost; (ii) the
+residuals are divided by their sigma (``sigma_photometric`` / ``sigma_geometric``, optionally widened by the
+network's b); (iii) Huber on the normalised residual, applied as iteratively re-weighted least squares;
+(iv) residuals of pixels whose surface in A is strongly slanted to the viewing ray are down-weighted;
+(v) photometric residuals of pixels whose warped point lies clearly behind B's decoded surface are down-weighted
+(the geometric ones too with ``occlusion_geometric``, see :class:`~codeslam.sfm.config.SfMConfig`).
+The weights of (iv) and (v) and the masks are evaluated at the current state and held fixed in the Jacobians.
+
+Jacobians are returned in compact form (:class:`PairTerms`): per pixel and residual type a row w.r.t. the
+relative pose (6) and the affine parameters (2), a scalar ``s_A`` with ``d r / d c_A = s_A J_A[u]`` and a scalar
+``s_B`` with ``d r / d c_B = s_B J_B[v]``; :mod:`codeslam.sfm.normal_equations` turns them into the normal
+equations without ever forming the dense Jacobian.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import kornia
+import torch
+
+from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH
+from codeslam.geometry.camera import project_jac
+from codeslam.geometry.image import bilinear_sample, image_gradients, inside_image
+from codeslam.geometry.proximity import d_depth_d_prox, d_prox_d_depth, depth_to_prox, prox_to_depth
+from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.keyframes import LevelData
+from codeslam.sfm.warp import pose_row, relative_pose, warp
+
+PHOTOMETRIC, GEOMETRIC = "photometric", "geometric"
+
+
+@dataclass
+class PairEvaluation:
+    """Residuals of P pairs with T residual types over N pixels, and what their Jacobians reuse.
+
+    r, valid, sigma, fixed_weight: (P, T, N); huber: (T,) thresholds in sigmas. The rest (P, N, ...) are the
+    warp's intermediates: T_BA (P, 4, 4), x_B (P, N, 3), ray_A (P, N, 3), dd_dprox_A (P, N) = d D_A / d P_A at u,
+    gain (P, 1) = exp(a), gray_B (P, N) = I_B[v], grad_gray_B / grad_prox_B (P, N, 2) (None unless requested),
+    dprox_dz (P, N) = d prox_B(x_z) / d x_z, v (P, N, 2).
+    """
+
+    types: tuple[str, ...]
+    r: torch.Tensor
+    valid: torch.Tensor
+    sigma: torch.Tensor
+    fixed_weight: torch.Tensor
+    huber: torch.Tensor
+    T_BA: torch.Tensor
+    x_B: torch.Tensor
+    ray_A: torch.Tensor
+    dd_dprox_A: torch.Tensor
+    gain: torch.Tensor
+    gray_B: torch.Tensor
+    grad_gray_B: torch.Tensor | None
+    grad_prox_B: torch.Tensor | None
+    dprox_dz: torch.Tensor
+    v: torch.Tensor
+
+
+@dataclass
+class PairTerms:
+    """Weighted residuals and compact Jacobians of P pairs, T types, N pixels (rows are zero where masked).
+
+    r, w: (P, T, N) residuals and IRLS weights (``fixed * huber / sigma^2``, 0 where masked); cost: (P,) robust
+    cost of each pair. J_rel (P, T, N, 6): d r / d xi_BA (left perturbation of T_BA). J_aff (P, T, N, 2):
+    d r / d (a, b). s_A (P, T, N): d r / d c_A = s_A J_A[u]. s_B (P, T, N): d r / d c_B = s_B JB_w^T.
+    JB_w: per pair a (C, N) view of J_B sampled at v (None without geometric residuals or when no code of B is
+    free).
+    """
+
+    types: tuple[str, ...]
+    r: torch.Tensor
+    w: torch.Tensor
+    cost: torch.Tensor
+    J_rel: torch.Tensor
+    J_aff: torch.Tensor
+    s_A: torch.Tensor
+    s_B: torch.Tensor
+    JB_w: list[torch.Tensor] | None
+
+
+def interpolant_gradient(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """Exact derivative of the bilinear interpolant of ``img`` (what autograd through
+    :func:`~codeslam.geometry.image.bilinear_sample` gives): img (B, C, H, W), uv (B, N, 2) -> (B, C, 2, N).
+
+    Inside the cell [u0, u0 + 1] with u0 = floor(u) the interpolant is linear in u, so d/du is the forward
+    difference ``I[., u0 + 1] - I[., u0]`` interpolated linearly in v (and likewise d/dv). Written by hand
+    because neither torch nor kornia returns the slope of a bilinear lookup.
+    """
+    H, W = img.shape[-2:]
+    du = img[..., :, 1:] - img[..., :, :-1]  # (B, C, H, W - 1), forward difference along u
+    dv = img[..., 1:, :] - img[..., :-1, :]  # (B, C, H - 1, W)
+    u, v = uv.unbind(-1)  # (B, N) each
+    u0 = torch.floor(u).clamp(0, W - 2)
+    v0 = torch.floor(v).clamp(0, H - 2)
+    gu, _ = bilinear_sample(du, torch.stack([u0, v], dim=-1))  # (B, C, N)
+    gv, _ = bilinear_sample(dv, torch.stack([u, v0], dim=-1))
+    return torch.stack([gu, gv], dim=2)
+
+
+def sample_by_frame(img: torch.Tensor, frame_of: list[int], uv: torch.Tensor) -> list[torch.Tensor]:
+    """Bilinear lookup of many-channel frame images without copying them per pair: img (F, C, H, W), frame_of
+    (P,) frame index of each pair, uv (P, N, 2) -> P views (C, N). One lookup per frame over all its pairs'
+    points (indexing ``img[frame_of]`` first would copy a (C, H, W) image per pair)."""
+    out: list[torch.Tensor | None] = [None] * len(frame_of)
+    for f in sorted(set(frame_of)):
+        ps = [p for p, fp in enumerate(frame_of) if fp == f]
+        vals, _ = bilinear_sample(img[f:f + 1], uv[ps].reshape(1, -1, 2))  # (1, C, len(ps) N)
+        vals = vals.reshape(img.shape[1], len(ps), uv.shape[1])  # (C, len(ps), N)
+        for k, p in enumerate(ps):
+            out[p] = vals[:, k]  # (C, N) view
+    return out
+
+
+def huber_cost_and_weight(s: torch.Tensor, k: torch.Tensor | float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Huber function of normalised residuals s (...) with threshold k: cost ``rho(s)`` (0.5 s^2 inside,
+    ``k |s| - 0.5 k^2`` outside) and IRLS weight ``rho'(s) / s`` (1 inside, ``k / |s|`` outside). Loss (iii)."""
+    a = s.abs()
+    inside = a <= k
+    cost = torch.where(inside, 0.5 * s * s, k * a - 0.5 * k * k)
+    weight = torch.where(inside, torch.ones_like(a), k / a.clamp_min(torch.finfo(a.dtype).tiny))
+    return cost, weight
+
+
+def slant_weight(depth: torch.Tensor, params: torch.Tensor, cos_min: float) -> torch.Tensor:
+    """Loss (iv): depth (F, 1, H, W), params (F, 4) -> (F, 1, H, W) weight ``min(1, cos / cos_min)`` where cos is
+    the angle between the surface normal (from the decoded depth) and the viewing ray."""
+    F_, _, H, W = depth.shape
+    K = torch.zeros(F_, 3, 3, dtype=depth.dtype, device=depth.device)
+    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = (
+        params[:, 0], params[:, 1], params[:, 2], params[:, 3], 1.0
+    )
+    normals = kornia.geometry.depth.depth_to_normals(depth, K)  # (F, 3, H, W), unit
+    u = torch.arange(W, dtype=depth.dtype, device=depth.device)
+    v = torch.arange(H, dtype=depth.dtype, device=depth.device)
+    rx = (u[None, None, :] - params[:, 2, None, None]) / params[:, 0, None, None]  # (F, 1, W)
+    ry = (v[None, :, None] - params[:, 3, None, None]) / params[:, 1, None, None]  # (F, H, 1)
+    ray = torch.stack(torch.broadcast_tensors(rx, ry, torch.ones_like(rx * ry)), dim=1)  # (F, 3, H, W)
+    cos = (normals * ray).sum(1, keepdim=True).abs() / ray.norm(dim=1, keepdim=True)
+    cos = torch.nan_to_num(cos, nan=0.0)
+    return (cos / cos_min).clamp(max=1.0)
+
+
+def evaluate_pairs(
+    level: LevelData,
+    pairs: torch.Tensor,
+    poses: torch.Tensor,
+    codes: torch.Tensor,
+    affine: torch.Tensor | None,
+    cfg: SfMConfig,
+    with_gradients: bool = True,
+    sampler: Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]] = bilinear_sample,
+) -> PairEvaluation:
+    """Residuals of every pair (differentiable in poses, codes and affine; masks and weights are detached).
+
+    level: the stacked keyframes; pairs (P, 2) long (A, B) frame indices; poses (F, 4, 4) T_wc; codes (F, C);
+    affine (P, 2) (log-gain, bias) or None for no brightness correction. ``with_gradients`` also samples the
+    image/proximity gradients of B at v (needed by :func:`pair_jacobians`). ``sampler`` is the bilinear lookup
+    (img (B, C, H, W), uv (B, N, 2)) -> (values (B, C, N), valid), by default
+    :func:`~codeslam.geometry.image.bilinear_sample`.
+    """
+    types = cfg.residual_types
+    P = pairs.shape[0]
+    H, W = level.height, level.width
+    iA, iB = pairs[:, 0], pairs[:, 1]
+    prox = level.prox(codes)  # (F, 1, H, W), prox0 + J c
+    a = level.avg_depth  # (F,)
+    depth = prox_to_depth(prox, a[:, None, None, None])  # (F, 1, H, W), Eq. 4 inverted
+    T_BA = relative_pose(poses[iA], poses[iB])  # (P, 4, 4)
+    d_A = depth[iA].reshape(P, -1)  # (P, N), D_A[u]
+    prox_A = prox[iA].reshape(P, -1)
+    uv = level.uv.expand(P, -1, -1)  # (P, N, 2)
+    v, x_B, ray_A = warp(uv, d_A, T_BA, level.params[iA][:, None], level.params[iB][:, None])  # Eq. 5
+    z = x_B[..., 2]
+
+    # (i) masks: inside B (minus the border), in front of B, valid depth of A.
+    valid = (
+        inside_image(v, H, W, margin=-cfg.border) & (z > MIN_DEPTH) & (d_A > 0) & torch.isfinite(v).all(-1)
+    ).detach()
+    v_safe = torch.where(valid[..., None], v, torch.zeros_like(v))  # keeps NaN/inf out of the lookups
+
+    # One lookup for every channel of B: grey, proximity, proximity validity, [Sobel gradients], [uncertainty].
+    prox_ok = (torch.isfinite(prox) & (prox != 0)).to(prox.dtype).detach()  # 0 = invalid sentinel (holes)
+    chans = [level.gray, prox, prox_ok]
+    sobel = with_gradients and cfg.gradient_mode == "sobel"
+    if sobel:
+        chans += [level.gray_grad[:, 0], image_gradients(prox)[:, 0]]  # (F, 2, H, W) each
+    if cfg.use_uncertainty and level.uncertainty is not None:
+        chans.append(level.uncertainty)
+    stack = torch.cat(chans, dim=1)[iB]  # (P, ch, H, W)
+    sampled, _ = sampler(stack, v_safe)  # (P, ch, N), the paper's square brackets at v
+    gray_B, prox_B = sampled[:, 0], sampled[:, 1]
+    grad_gray_B = grad_prox_B = None
+    if sobel:
+        grad_gray_B = sampled[:, 3:5].transpose(1, 2)  # (P, N, 2)
+        grad_prox_B = sampled[:, 5:7].transpose(1, 2)
+    elif with_gradients:
+        g = interpolant_gradient(torch.cat([level.gray, prox], dim=1)[iB], v_safe)  # (P, 2, 2, N)
+        grad_gray_B, grad_prox_B = g[:, 0].transpose(1, 2), g[:, 1].transpose(1, 2)
+
+    if affine is None:
+        log_gain = torch.zeros(P, 1, dtype=prox.dtype, device=prox.device)
+        bias = torch.zeros_like(log_gain)
+    else:
+        log_gain, bias = affine[:, :1], affine[:, 1:]
+    gain = torch.exp(log_gain)  # (P, 1)
+    a_B = a[iB][:, None]  # (P, 1)
+    z_safe = torch.where(valid, z, torch.ones_like(z))
+    prox_x = depth_to_prox(z_safe, a_B)  # proximity of the warped point's depth in B (Eq. 4)
+    depth_B_at_v = prox_to_depth(prox_B, a_B).detach()
+
+    rs, sigmas, fixed, valids, hubers = [], [], [], [], []
+    w_slant = slant_weight(depth.detach(), level.params, cfg.slant_cos_min)[iA].reshape(P, -1)  # (iv)
+    ones = torch.ones_like(d_A)
+    prox_B_ok = sampled[:, 2].detach() > BILINEAR_ALL_VALID  # all four bilinear neighbours of B's proximity valid
+    occluded = (z > depth_B_at_v * (1.0 + cfg.occlusion_margin)) & prox_B_ok  # (v): behind B's surface
+    for t in types:
+        if t == PHOTOMETRIC:
+            r = level.gray[iA].reshape(P, -1) - (gain * gray_B + bias)  # Eq. 13 with affine brightness (Sec. 5.2)
+            fixed.append(w_slant * torch.where(occluded.detach(), cfg.occlusion_weight * ones, ones))
+            sigmas.append(cfg.sigma_photometric * ones)
+            valids.append(valid)
+            hubers.append(cfg.huber_photometric)
+        else:
+            r = prox_x - prox_B  # Eq. 14, compared in proximity
+            sig2 = cfg.sigma_geometric**2 * ones
+            if cfg.use_uncertainty and level.uncertainty is not None:  # Laplace b: variance 2 b^2 per view
+                b_A = level.uncertainty[iA].reshape(P, -1)
+                sig2 = sig2 + 2.0 * b_A**2 + 2.0 * sampled[:, -1] ** 2
+            sigmas.append(sig2.sqrt().detach())
+            occ_w = w_slant
+            if cfg.occlusion_geometric:
+                occ_w = w_slant * torch.where(occluded.detach(), cfg.occlusion_weight * ones, ones)
+            fixed.append(occ_w)
+            valids.append(valid & prox_B_ok)  # no lookup mixing B's proximity with holes (loss (i))
+            hubers.append(cfg.huber_geometric)
+        rs.append(r)
+    valid_t = torch.stack(valids, dim=1)  # (P, T, N)
+    r_t = torch.where(valid_t, torch.stack(rs, dim=1), torch.zeros((), dtype=prox.dtype, device=prox.device))
+    return PairEvaluation(
+        types=types,
+        r=r_t,
+        valid=valid_t,
+        sigma=torch.stack(sigmas, dim=1),
+        fixed_weight=torch.stack(fixed, dim=1).detach(),
+        huber=torch.tensor(hubers, dtype=prox.dtype, device=prox.device),
+        T_BA=T_BA,
+        x_B=x_B,
+        ray_A=ray_A,
+        dd_dprox_A=d_depth_d_prox(prox_A, a[iA][:, None]),
+        gain=gain,
+        gray_B=gray_B,
+        grad_gray_B=grad_gray_B,
+        grad_prox_B=grad_prox_B,
+        dprox_dz=d_prox_d_depth(z_safe, a_B),
+        v=v_safe,
+    )
+
+
+def robust_weights(ev: PairEvaluation) -> tuple[torch.Tensor, torch.Tensor]:
+    """-> IRLS weights (P, T, N) ``fixed * rho'(s)/s / sigma^2`` (0 where masked) and the robust cost (P,)
+    ``sum fixed * rho(r / sigma)`` plus ``rho(k) = k^2 / 2`` per masked row (loss (i))."""
+    k = ev.huber[None, :, None]  # (1, T, 1)
+    rho, irls = huber_cost_and_weight(ev.r / ev.sigma, k)
+    zero = torch.zeros((), dtype=ev.r.dtype, device=ev.r.device)
+    w = torch.where(ev.valid, ev.fixed_weight * irls / ev.sigma**2, zero)
+    cost_rows = torch.where(ev.valid, ev.fixed_weight * rho, 0.5 * k * k)
+    return w, cost_rows.sum(dim=(1, 2))
+
+
+def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, with_code_b: bool = True) -> PairTerms:
+    """Compact analytic Jacobians (Eqs. 7-9 and their geometric counterparts) of the residuals in ``ev``
+    (evaluated with ``with_gradients=True``). ``with_code_b=False`` skips sampling J_B at v (its block is fixed)."""
+    w, cost = robust_weights(ev)
+    P, T, N = ev.r.shape
+    dtype = ev.r.dtype
+    iB = pairs[:, 1]
+    dpi = project_jac(ev.x_B, level.params[iB][:, None])  # (P, N, 2, 3), d pi / d x
+    dx_dd = ev.ray_A @ ev.T_BA[:, :3, :3].transpose(1, 2)  # Eq. 9: R d pi^-1 / d d, (P, N, 3)
+    e_z = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=ev.r.device)
+    J_rel, J_aff, s_A, s_B = [], [], [], []
+    zeros = torch.zeros(P, N, dtype=dtype, device=ev.r.device)
+    for t in ev.types:
+        if t == PHOTOMETRIC:
+            dr_dv = -ev.gain[..., None] * ev.grad_gray_B  # (P, N, 2): - alpha dI_B[v]/dv
+            dr_dx = (dr_dv.unsqueeze(-1) * dpi).sum(-2)  # Eqs. 7-9 common factor dI_B/dv dpi/dx, (P, N, 3)
+            J_aff.append(torch.stack([-ev.gain * ev.gray_B, -torch.ones_like(zeros)], dim=-1))  # d/d(a, b)
+            s_B.append(zeros)
+        else:
+            # d/dx [prox_B(x_z) - P_B[pi(x)]] = dprox/dz e_z - dP_B/dv dpi/dx
+            dr_dx = ev.dprox_dz[..., None] * e_z - (ev.grad_prox_B.unsqueeze(-1) * dpi).sum(-2)
+            J_aff.append(torch.zeros(P, N, 2, dtype=dtype, device=ev.r.device))
+            s_B.append(-torch.ones_like(zeros))  # d r_geo / d c_B = -J_B[v]
+        J_rel.append(pose_row(dr_dx, ev.x_B, ev.T_BA))  # Eqs. 7-8 in SE(3) left form, (P, N, 6)
+        s_A.append((dr_dx * dx_dd).sum(-1) * ev.dd_dprox_A)  # Eq. 9 with dD_A/dc_A = dD/dP J_A[u]
+    valid = ev.valid
+    zero = torch.zeros((), dtype=dtype, device=ev.r.device)
+    JB_w = None
+    if GEOMETRIC in ev.types and with_code_b:
+        JB_w = sample_by_frame(level.jac, pairs[:, 1].tolist(), ev.v)  # J_B[v], P x (C, N)
+    return PairTerms(
+        types=ev.types,
+        r=ev.r,
+        w=w,
+        cost=cost,
+        J_rel=torch.where(valid[..., None], torch.stack(J_rel, dim=1), zero),
+        J_aff=torch.where(valid[..., None], torch.stack(J_aff, dim=1), zero),
+        s_A=torch.where(valid, torch.stack(s_A, dim=1), zero),
+        s_B=torch.where(valid, torch.stack(s_B, dim=1), zero),
+        JB_w=JB_w,
+    )

@@ -1,0 +1,267 @@
+"""Damped Gauss-Newton (Levenberg-Marquardt) over codes, poses and affine brightness (paper Sec. 4.1), and the
+N-frame structure-from-motion entry point :func:`sfm`.
+
+The solver drives any *problem* with two methods (duck-typed, see :class:`PairProblem`):
+
+* ``evaluate(state) -> (cost: float, cache)``: the total cost at ``state``;
+* ``linearize(state, cache, layout, profile) -> (H, g)``: normal equations over ``layout``'s free blocks at the
+  state ``cache`` was evaluated at, with ``g`` the gradient of the cost and ``H`` its Gauss-Newton Hessian.
+
+so the SLAM back-end (pairs of the window + a :class:`~codeslam.sfm.variables.LinearPrior` from
+marginalisation) and the tracker (photometric pairs, only the current pose free) reuse it unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import torch
+
+from codeslam.constants import MIN_LM_DAMPING
+from codeslam.errors import CodeSLAMError
+from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.keyframes import Keyframe, LevelData, build_levels
+from codeslam.sfm.normal_equations import assemble
+from codeslam.sfm.residuals import PairEvaluation, evaluate_pairs, pair_jacobians, robust_weights
+from codeslam.sfm.variables import AFFINE, CODE, BlockId, LinearPrior, SfMState, VariableLayout
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+class PairProblem:
+    """The cost of one pyramid level: robust pair residuals + the VAE code prior ``0.5 w |c|^2`` + the affine
+    prior + optional linear priors.
+
+    level: stacked keyframes; pairs (P, 2) long (A, B); cfg: residual/loss settings and prior weights.
+    """
+
+    def __init__(
+        self, level: LevelData, pairs: torch.Tensor, cfg: SfMConfig, priors: Sequence[LinearPrior] = ()
+    ) -> None:
+        if bool((pairs[:, 0] == pairs[:, 1]).any()):
+            raise CodeSLAMError("a frame pair must join two different frames")
+        self.level, self.pairs, self.cfg, self.priors = level, pairs, cfg, list(priors)
+        self.pair_b = sorted({int(b) for b in pairs[:, 1].tolist()})
+
+    def _prior_cost(self, state: SfMState) -> torch.Tensor:
+        cfg = self.cfg
+        cost = 0.5 * cfg.code_prior_weight * state.codes.square().sum()  # VAE prior N(0, I) (Sec. 2.1)
+        if cfg.affine_brightness:
+            sig = state.affine.new_tensor(cfg.affine_prior_sigma)
+            cost = cost + 0.5 * (state.affine / sig).square().sum()
+        for prior in self.priors:
+            cost = cost + prior.cost(state).to(cost.dtype)
+        return cost
+
+    def evaluate(self, state: SfMState) -> tuple[float, PairEvaluation]:
+        affine = state.affine if self.cfg.affine_brightness else None
+        ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg)
+        _, pair_cost = robust_weights(ev)
+        return float(pair_cost.sum() + self._prior_cost(state)), ev
+
+    def linearize(
+        self, state: SfMState, cache: PairEvaluation, layout: VariableLayout, profile: dict | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        cfg = self.cfg
+        code_b_free = any(BlockId(CODE, b) in layout for b in self.pair_b)
+        terms = pair_jacobians(self.level, self.pairs, cache, with_code_b=code_b_free)
+        H, g = assemble(terms, self.pairs, state.poses, self.level, layout, profile)
+        for b, sl in layout.slices():
+            if b.kind == CODE:  # VAE prior: 0.5 w |c|^2
+                H[sl, sl] += cfg.code_prior_weight * torch.eye(sl.stop - sl.start, dtype=H.dtype, device=H.device)
+                g[sl] += cfg.code_prior_weight * state.codes[b.index].to(g.dtype)
+            elif b.kind == AFFINE:
+                inv_var = 1.0 / H.new_tensor(cfg.affine_prior_sigma) ** 2
+                H[sl, sl] += torch.diag(inv_var)
+                g[sl] += inv_var * state.affine[b.index].to(g.dtype)
+        for prior in self.priors:
+            prior.add_to(H, g, layout, state)
+        return H, g
+
+
+@dataclass
+class LMReport:
+    """What one Levenberg-Marquardt run did. costs: the initial cost and the cost after every accepted step
+    (strictly decreasing); step_ms: wall time of every iteration (accepted or not)."""
+
+    costs: list[float] = field(default_factory=list)
+    iterations: int = 0
+    accepted: int = 0
+    rejected: int = 0
+    damping: float = 0.0
+    reason: str = ""
+    step_ms: list[float] = field(default_factory=list)
+
+
+def solve_damped(H: torch.Tensor, g: torch.Tensor, damping: float, min_diagonal: float) -> torch.Tensor | None:
+    """Solve ``(H + damping diag(H)) delta = -g`` by Cholesky in float64 (the system is small; float64 keeps
+    ill-conditioned code blocks exact). Returns None when the damped matrix is not positive definite."""
+    Hd, gd = H.to(torch.float64), g.to(torch.float64)
+    diag = Hd.diagonal().clamp_min(min_diagonal)
+    L, info = torch.linalg.cholesky_ex(Hd + torch.diag(damping * diag))
+    if int(info) != 0:
+        return None
+    return -torch.cholesky_solve(gd.unsqueeze(-1), L).squeeze(-1)
+
+
+def levenberg_marquardt(
+    problem, state: SfMState, layout: VariableLayout, cfg: SfMConfig, max_iterations: int,
+    profile: dict | None = None,
+) -> tuple[SfMState, LMReport]:
+    """Minimise ``problem``'s cost over ``layout``'s free blocks from ``state``.
+
+    Each iteration solves the damped normal equations; a step is accepted only if the new cost is finite and
+    lower, then the damping shrinks; otherwise (cost increase, NaN/inf, non-PD system) the damping grows and the
+    state is kept. Stops after ``max_iterations``, when an accepted step lowers the cost by less than
+    ``relative_cost_tolerance`` or is shorter than ``step_tolerance``, when the quadratic model itself predicts
+    less than that relative decrease (converged as far as the linearisation can tell; this also ends the run of
+    rejections that approximate image gradients cause near the optimum), or when the damping exceeds
+    ``max_damping``.
+    """
+    report = LMReport(damping=cfg.initial_damping)
+    device = state.poses.device
+    cost, cache = problem.evaluate(state)
+    report.costs.append(cost)
+    if not math.isfinite(cost):
+        report.reason = "non-finite initial cost"
+        return state, report
+    if layout.dim == 0:
+        report.reason = "no free variables"
+        return state, report
+    lam = cfg.initial_damping
+    H = g = None
+    report.reason = "max iterations"
+    for _ in range(max_iterations):
+        _sync(device)
+        t0 = time.perf_counter()
+        if H is None:
+            H, g = problem.linearize(state, cache, layout, profile)
+        delta = solve_damped(H, g, lam, cfg.min_diagonal)
+        accepted = False
+        if delta is not None and bool(torch.isfinite(delta).all()):
+            d = delta.to(H.dtype)
+            predicted = -float(g @ d + 0.5 * d @ (H @ d))  # decrease the quadratic model promises
+            if predicted < cfg.relative_cost_tolerance * abs(cost):
+                report.reason = "predicted decrease below tolerance"
+                _sync(device)
+                report.step_ms.append(1e3 * (time.perf_counter() - t0))
+                break
+            new_state = state.retract(layout, delta)
+            new_cost, new_cache = problem.evaluate(new_state)
+            if math.isfinite(new_cost) and new_cost < cost:
+                accepted = True
+        report.iterations += 1
+        if accepted:
+            rel = (cost - new_cost) / max(abs(cost), sys.float_info.min)
+            state, cost, cache = new_state, new_cost, new_cache
+            H = g = None
+            lam = max(lam * cfg.damping_decrease, MIN_LM_DAMPING)
+            report.accepted += 1
+            report.costs.append(cost)
+        else:
+            lam *= cfg.damping_increase
+            report.rejected += 1
+        _sync(device)
+        report.step_ms.append(1e3 * (time.perf_counter() - t0))
+        if accepted and rel < cfg.relative_cost_tolerance:
+            report.reason = "relative cost decrease below tolerance"
+            break
+        if accepted and float(delta.norm()) < cfg.step_tolerance:
+            report.reason = "step below tolerance"
+            break
+        if lam > cfg.max_damping:
+            report.reason = "damping above maximum"
+            break
+    report.damping = lam
+    return state, report
+
+
+@dataclass
+class SfMResult:
+    """Result of :func:`sfm`. poses (F, 4, 4) T_wc; codes (F, C); affine (P, 2) (log-gain, bias) per pair;
+    pairs (P, 2); levels: one :class:`LMReport` per visited pyramid level (coarse to fine); iterations and
+    ms_per_iteration over all levels; total_ms the wall time of the whole optimisation."""
+
+    poses: torch.Tensor
+    codes: torch.Tensor
+    affine: torch.Tensor
+    pairs: torch.Tensor
+    levels: list[tuple[int, LMReport]]
+    iterations: int
+    ms_per_iteration: float
+    total_ms: float
+
+    @property
+    def costs(self) -> list[float]:
+        """Costs of the finest level's accepted steps (initial first)."""
+        return self.levels[-1][1].costs
+
+    def depths(self, keyframes: Sequence[Keyframe], level: int = 0) -> list[torch.Tensor | None]:
+        """Decoded depth (H_l, W_l) of every keyframe at its optimised code (None for frames without decoder)."""
+        return [None if kf.decoder is None else kf.decoder.depth(self.codes[i].to(kf.decoder.levels[0].jac.dtype),
+                                                                 level)
+                for i, kf in enumerate(keyframes)]
+
+
+def _as_pairs(pairs, num_frames: int, device) -> torch.Tensor:
+    t = torch.as_tensor(pairs, dtype=torch.long, device=device).reshape(-1, 2)
+    if t.numel() == 0:
+        raise CodeSLAMError("SfM needs at least one frame pair")
+    if bool(((t < 0) | (t >= num_frames)).any()) or bool((t[:, 0] == t[:, 1]).any()):
+        raise CodeSLAMError(f"SfM pairs must be (A, B) with distinct frame indices in [0, {num_frames})")
+    return t
+
+
+def sfm(
+    keyframes: Sequence[Keyframe],
+    pairs,
+    config: SfMConfig | None = None,
+    poses_init: torch.Tensor | None = None,
+    codes_init: torch.Tensor | None = None,
+    fixed: Sequence[BlockId] = (BlockId("pose", 0),),
+    priors: Sequence[LinearPrior] = (),
+    profile: dict | None = None,
+) -> SfMResult:
+    """Joint optimisation of the codes and poses of ``keyframes`` (paper Sec. 4.1).
+
+    pairs: (P, 2) frame indices (A, B) whose residuals warp A into B (see :mod:`codeslam.sfm.pairs`).
+    poses_init (F, 4, 4) T_wc (identity when None), codes_init (F, C) (zero when None, the paper's start).
+    fixed: blocks held constant; the default fixes the first pose (the gauge); codes of frames without decoder
+    are always fixed. priors: extra linear priors (e.g. from marginalisation), on free blocks only.
+    Coarse to fine over ``config.pyramid_levels``, each level with ``config.max_iterations`` LM iterations.
+    """
+    cfg = config or SfMConfig()
+    levels = build_levels(keyframes, cfg.pyramid_levels)
+    lv0 = levels[cfg.pyramid_levels[0]]
+    dtype, device = lv0.jac.dtype, lv0.jac.device
+    F_, C = lv0.num_frames, lv0.code_size
+    pair_t = _as_pairs(pairs, F_, device)
+    poses = torch.eye(4, dtype=dtype, device=device).repeat(F_, 1, 1) if poses_init is None else poses_init
+    codes = torch.zeros(F_, C, dtype=dtype, device=device) if codes_init is None else codes_init
+    if poses.shape != (F_, 4, 4) or codes.shape != (F_, C):
+        raise CodeSLAMError(f"initial poses/codes must be ({F_}, 4, 4) and ({F_}, {C})")
+    state = SfMState(poses.to(dtype=dtype, device=device).clone(), codes.to(dtype=dtype, device=device).clone(),
+                     torch.zeros(pair_t.shape[0], 2, dtype=dtype, device=device))
+    no_depth = [BlockId(CODE, i) for i, kf in enumerate(keyframes) if kf.decoder is None]  # codes with no effect
+    layout = VariableLayout.for_sfm(F_, C, pair_t.shape[0], cfg.affine_brightness, [*fixed, *no_depth])
+    reports = []
+    t0 = time.perf_counter()
+    for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
+        problem = PairProblem(levels[lvl], pair_t, cfg, priors)
+        state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, profile)
+        reports.append((lvl, rep))
+    _sync(device)
+    total_ms = 1e3 * (time.perf_counter() - t0)
+    n_it = sum(r.iterations for _, r in reports)
+    step_ms = [ms for _, r in reports for ms in r.step_ms]
+    return SfMResult(
+        poses=state.poses, codes=state.codes, affine=state.affine, pairs=pair_t, levels=reports,
+        iterations=n_it, ms_per_iteration=sum(step_ms) / max(len(step_ms), 1), total_ms=total_ms,
+    )

@@ -1,0 +1,148 @@
+"""The optimisation variables: their values (:class:`SfMState`), which of them are free and where they sit in
+the normal equations (:class:`VariableLayout`), and a linear prior on a subset of them (:class:`LinearPrior`,
+e.g. the result of marginalising old keyframes in a sliding window).
+
+Blocks: ``pose`` i (6, left increment of T_wc i, ``T <- exp(xi) T``), ``code`` i (C, additive) and ``affine``
+p (2: log-gain and bias of pair p, additive).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import torch
+
+from codeslam.errors import CodeSLAMError
+from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+
+POSE, CODE, AFFINE = "pose", "code", "affine"
+POSE_DIM, AFFINE_DIM = 6, 2
+
+
+@dataclass(frozen=True, order=True)
+class BlockId:
+    """A variable block: ``kind`` in (pose, code, affine) and the frame (pose, code) or pair (affine) index."""
+
+    kind: str
+    index: int
+
+
+@dataclass
+class SfMState:
+    """Values of all variables. poses (F, 4, 4) T_wc, codes (F, C), affine (P, 2) = (log-gain a, bias b) of the
+    brightness model ``I_A ~ exp(a) I_B + b`` of each pair."""
+
+    poses: torch.Tensor
+    codes: torch.Tensor
+    affine: torch.Tensor
+
+    def clone(self) -> SfMState:
+        return SfMState(self.poses.clone(), self.codes.clone(), self.affine.clone())
+
+    def block(self, b: BlockId) -> torch.Tensor:
+        """The value of one block: (4, 4) pose, (C,) code or (2,) affine."""
+        return {POSE: self.poses, CODE: self.codes, AFFINE: self.affine}[b.kind][b.index]
+
+    def retract(self, layout: VariableLayout, delta: torch.Tensor) -> SfMState:
+        """The state moved by ``delta`` (layout.dim,): ``T <- exp(xi) T`` for poses, ``+`` for the rest."""
+        new = self.clone()
+        for b, sl in layout.slices():
+            d = delta[sl].to(self.poses.dtype)
+            if b.kind == POSE:
+                new.poses[b.index] = se3_exp(d) @ self.poses[b.index]
+            elif b.kind == CODE:
+                new.codes[b.index] = self.codes[b.index] + d
+            else:
+                new.affine[b.index] = self.affine[b.index] + d
+        return new
+
+    def local_difference(self, b: BlockId, value0: torch.Tensor) -> torch.Tensor:
+        """``x ominus x0`` of one block, inverse of :meth:`retract`: ``log(T T0^-1)`` for poses, ``x - x0``
+        otherwise."""
+        x = self.block(b)
+        return se3_log(x @ se3_inverse(value0)) if b.kind == POSE else x - value0
+
+
+class VariableLayout:
+    """The free blocks, in order, and their offsets in the stacked increment vector."""
+
+    def __init__(self, blocks: Sequence[tuple[BlockId, int]]) -> None:
+        self.blocks = list(blocks)
+        self._offset: dict[BlockId, tuple[int, int]] = {}
+        o = 0
+        for b, size in self.blocks:
+            if b in self._offset:
+                raise ValueError(f"block {b} appears twice in the layout")
+            self._offset[b] = (o, size)
+            o += size
+        self.dim = o
+
+    @classmethod
+    def for_sfm(
+        cls, num_frames: int, code_size: int, num_pairs: int, affine: bool, fixed: Iterable[BlockId] = ()
+    ) -> VariableLayout:
+        """Poses and codes of every frame and affine parameters of every pair (if ``affine``), minus ``fixed``
+        (e.g. ``[BlockId('pose', 0)]``, the gauge)."""
+        fixed = set(fixed)
+        blocks = [(BlockId(POSE, i), POSE_DIM) for i in range(num_frames)]
+        blocks += [(BlockId(CODE, i), code_size) for i in range(num_frames)]
+        if affine:
+            blocks += [(BlockId(AFFINE, p), AFFINE_DIM) for p in range(num_pairs)]
+        return cls([(b, s) for b, s in blocks if b not in fixed])
+
+    def __contains__(self, b: BlockId) -> bool:
+        return b in self._offset
+
+    def slice(self, b: BlockId) -> slice | None:
+        """The block's slice of the increment vector, or None when the block is not free."""
+        if b not in self._offset:
+            return None
+        o, s = self._offset[b]
+        return slice(o, o + s)
+
+    def slices(self) -> list[tuple[BlockId, slice]]:
+        return [(b, self.slice(b)) for b, _ in self.blocks]
+
+    def indices(self, blocks: Iterable[BlockId]) -> torch.Tensor:
+        """Long tensor of the increment-vector indices of ``blocks`` (in the given order)."""
+        idx = []
+        for b in blocks:
+            sl = self.slice(b)
+            if sl is None:
+                raise CodeSLAMError(f"variable block {b.kind} {b.index} is not free in this problem")
+            idx.extend(range(sl.start, sl.stop))
+        return torch.tensor(idx, dtype=torch.long)
+
+
+@dataclass
+class LinearPrior:
+    """A quadratic prior ``0.5 d^T H d + b^T d`` on some blocks, ``d = x ominus x0`` stacked in ``blocks`` order
+    (how a marginalised sliding window constrains the remaining keyframes).
+
+    Attributes:
+        blocks: the constrained blocks (all must be free in the layout the prior is used with).
+        H: (k, k) symmetric positive semi-definite information matrix.
+        b: (k,) gradient at the linearisation point.
+        x0: the linearisation point of each block ((4, 4) pose, (C,) code, (2,) affine).
+    """
+
+    blocks: list[BlockId]
+    H: torch.Tensor
+    b: torch.Tensor
+    x0: list[torch.Tensor]
+
+    def delta(self, state: SfMState) -> torch.Tensor:
+        """(k,) ``x ominus x0`` stacked."""
+        return torch.cat([state.local_difference(b, v0) for b, v0 in zip(self.blocks, self.x0)])
+
+    def cost(self, state: SfMState) -> torch.Tensor:
+        d = self.delta(state).to(self.H.dtype)
+        return 0.5 * d @ self.H @ d + self.b @ d
+
+    def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
+        """Add the prior's Hessian and gradient (``b + H d``, with ``d(d)/d(increment) ~ I``) in place."""
+        idx = layout.indices(self.blocks).to(H.device)
+        d = self.delta(state).to(H.dtype)
+        H[idx[:, None], idx[None, :]] += self.H.to(H.dtype)
+        g[idx] += (self.b + self.H @ d).to(g.dtype)

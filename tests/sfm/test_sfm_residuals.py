@@ -1,0 +1,223 @@
+"""Residuals, loss functions and the compact analytic Jacobians against autograd (float64)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from sfm_scene import look_pose, make_frames
+
+from codeslam.geometry.image import bilinear_sample, image_gradients
+from codeslam.sfm.autodiff import autodiff_jacobian, bilinear_sample_gather
+from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.keyframes import build_levels
+from codeslam.sfm.normal_equations import dense_jacobian
+from codeslam.sfm.residuals import (
+    evaluate_pairs,
+    huber_cost_and_weight,
+    interpolant_gradient,
+    pair_jacobians,
+    robust_weights,
+    slant_weight,
+)
+from codeslam.sfm.variables import AFFINE, CODE, POSE, BlockId, SfMState, VariableLayout
+
+D = torch.float64
+PAIRS = torch.tensor([[0, 1], [1, 0], [2, 0], [1, 2]])
+
+
+@pytest.fixture(scope="module")
+def problem():
+    gt = [look_pose(), look_pose((0.2, -0.05, 0.03), (0.02, -0.04, 0.01)),
+          look_pose((-0.1, 0.1, 0.1), (0.0, 0.03, 0.02))]
+    kfs, codes, poses = make_frames(gt, width=32, height=24, code_size=5, levels=1, seed=2)
+    g = torch.Generator().manual_seed(5)
+    # A state away from the truth (so warped pixels are non-integer and residuals non-zero).
+    poses = se3_perturb(poses, 0.02, g)
+    state = SfMState(poses, codes + 0.3 * torch.randn(codes.shape, generator=g, dtype=D),
+                     0.05 * torch.randn(4, 2, generator=g, dtype=D))
+    return build_levels(kfs, [0])[0], state
+
+
+def se3_perturb(poses, scale, g):
+    from codeslam.geometry.lie import se3_exp
+    return se3_exp(scale * torch.randn(poses.shape[0], 6, generator=g, dtype=D)) @ poses
+
+
+def test_gather_lookup_equals_grid_sample_lookup():
+    g = torch.Generator().manual_seed(0)
+    img = torch.rand(2, 3, 9, 11, generator=g, dtype=D)
+    uv = torch.rand(2, 50, 2, generator=g, dtype=D) * torch.tensor([12.0, 10.0], dtype=D) - 1.0  # some outside
+    a, va = bilinear_sample(img, uv)
+    b, vb = bilinear_sample_gather(img, uv)
+    torch.testing.assert_close(a, b)
+    assert torch.equal(va, vb)
+
+
+def test_interpolant_gradient_is_the_autograd_slope_of_the_bilinear_lookup():
+    g = torch.Generator().manual_seed(1)
+    img = torch.rand(1, 2, 9, 11, generator=g, dtype=D)
+    uv = (torch.rand(1, 40, 2, generator=g, dtype=D) * torch.tensor([10.0, 8.0], dtype=D)).requires_grad_()
+    vals, _ = bilinear_sample(img, uv)
+    grad = interpolant_gradient(img, uv.detach())  # (1, 2, 2, N)
+    for c in range(2):
+        (gu,) = torch.autograd.grad(vals[0, c].sum(), uv, retain_graph=True)
+        torch.testing.assert_close(grad[0, c].T, gu[0])
+
+
+def test_huber_weight_is_the_derivative_of_its_cost_over_s():
+    s = torch.linspace(-5, 5, 41, dtype=D).requires_grad_()
+    cost, w = huber_cost_and_weight(s, 1.3)
+    (d,) = torch.autograd.grad(cost.sum(), s)
+    torch.testing.assert_close(d, w * s.detach())
+
+
+def _layout(fixed=()):
+    return VariableLayout.for_sfm(3, 5, 4, True, fixed=fixed)
+
+
+@pytest.mark.parametrize("types", [dict(), dict(geometric=False), dict(photometric=False)])
+def test_compact_jacobians_match_autograd_for_every_block(problem, types):
+    level, state = problem
+    cfg = SfMConfig(gradient_mode="interpolant", **types)
+    layout = _layout()  # every block free, so each block's columns are checked
+    ev = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cfg)
+    assert 0.5 < ev.valid.float().mean() < 1.0  # some rows masked, most valid
+    terms = pair_jacobians(level, PAIRS, ev)
+    J = dense_jacobian(terms, PAIRS, state.poses, level, layout)
+    J_ref = autodiff_jacobian(level, PAIRS, state, layout, cfg)
+    for b, sl in layout.slices():
+        if b.kind == AFFINE and not cfg.photometric:
+            assert J[:, sl].abs().max() == 0
+        scale = J_ref[:, sl].abs().max().clamp_min(1e-12)
+        err = (J[:, sl] - J_ref[:, sl]).abs().max() / scale
+        assert err < 1e-10, (b, float(err))
+
+
+def test_relative_pose_jacobian_is_the_left_perturbation_of_T_BA(problem):
+    """With B at the identity, xi_A perturbs T_BA = T_wA on the left: J_rel must equal d r / d xi_A."""
+    level, state = problem
+    cfg = SfMConfig(gradient_mode="interpolant")
+    st = state.clone()
+    st.poses[1] = torch.eye(4, dtype=D)
+    pairs = torch.tensor([[0, 1]])
+    st.affine = st.affine[:1]
+    ev = evaluate_pairs(level, pairs, st.poses, st.codes, st.affine, cfg)
+    terms = pair_jacobians(level, pairs, ev)
+    layout = VariableLayout([(BlockId(POSE, 0), 6)])
+    J_ref = autodiff_jacobian(level, pairs, st, layout, cfg)  # (T N, 6)
+    torch.testing.assert_close(terms.J_rel.reshape(-1, 6), J_ref, rtol=1e-9, atol=1e-9)
+
+
+def test_sobel_and_interpolant_jacobians_agree_where_both_gradients_are_exact(problem):
+    """On an intensity ramp both the Sobel and the bilinear-interpolant slopes are the exact gradient, so the two
+    modes must give the same Jacobians: the Sobel path uses the same chain rule."""
+    level, state = problem
+    uv = level.uv.reshape(level.height, level.width, 2)
+    ramp = torch.stack([0.2 + 0.01 * uv[..., 0] + 0.02 * uv[..., 1], 0.8 - 0.015 * uv[..., 0] + 0.01 * uv[..., 1],
+                        0.3 + 0.005 * uv[..., 0] + 0.003 * uv[..., 1]])[:, None]  # (3, 1, H, W)
+    level = type(level)(**{**level.__dict__, "gray": ramp, "gray_grad": image_gradients(ramp)})
+    layout = _layout([BlockId(POSE, 0)])
+    J = {}
+    for mode in ("sobel", "interpolant"):
+        cfg = SfMConfig(gradient_mode=mode, geometric=False, border=2.0)
+        ev = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cfg)
+        J[mode] = dense_jacobian(pair_jacobians(level, PAIRS, ev), PAIRS, state.poses, level, layout)
+    assert J["sobel"].abs().max() > 0
+    torch.testing.assert_close(J["sobel"], J["interpolant"], rtol=1e-9, atol=1e-9)
+
+
+def test_residuals_vanish_at_the_truth_away_from_occlusions():
+    gt = [look_pose(), look_pose((0.15, 0.0, 0.05), (0.0, -0.03, 0.0))]
+    kfs, codes, poses = make_frames(gt, width=48, height=36, code_size=4, levels=1, panel=False)
+    level = build_levels(kfs, [0])[0]
+    ev = evaluate_pairs(level, torch.tensor([[0, 1]]), poses, codes, None, SfMConfig())
+    r = ev.r[ev.valid]
+    assert ev.valid.float().mean() > 0.7
+    assert r.abs().median() < 1e-3  # photo-consistent rendering, exact depth
+
+
+def test_masks_zero_invalid_rows_and_price_them_at_the_huber_threshold(problem):
+    level, state = problem
+    cfg = SfMConfig()
+    st = state.clone()
+    from codeslam.geometry.lie import se3_exp
+    st.poses[1] = se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, 1.2, 0.0], dtype=D)) @ st.poses[0]  # looks away
+    st.poses[2] = se3_exp(torch.tensor([0.0, 0.0, -3.0, 0.0, 0.0, 0.0], dtype=D)) @ st.poses[0]
+    ev = evaluate_pairs(level, PAIRS, st.poses, st.codes, st.affine, cfg)
+    assert not ev.valid[0].any()  # pair (0, 1): B looks 69 degrees away
+    terms = pair_jacobians(level, PAIRS, ev)
+    for t in (terms.r, terms.w, terms.J_rel, terms.J_aff, terms.s_A, terms.s_B):
+        assert torch.isfinite(t).all()
+        assert t[0].abs().max() == 0
+    w, cost = robust_weights(ev)
+    n_rows = ev.r[0].numel()
+    torch.testing.assert_close(cost[0], torch.tensor(0.5 * 1.345**2 * n_rows, dtype=D))
+
+
+def test_slant_weight_is_one_fronto_parallel_and_follows_the_normal_angle():
+    params = torch.tensor([[30.0, 30.0, 15.5, 11.5]], dtype=D)
+    flat = torch.full((1, 1, 24, 32), 2.0, dtype=D)
+    assert torch.allclose(slant_weight(flat, params, 0.25)[..., 1:-1, 1:-1], torch.ones((), dtype=D))
+    # The plane Z = 2 + 3 X (normal (-3, 0, 1)/sqrt(10)): depth = 2 / (1 - 3 x) with x = (u - cx) / fx.
+    x = (torch.arange(32, dtype=D) - 15.5) / 30.0
+    steep = (2.0 / (1.0 - 3.0 * x)).expand(1, 1, 24, 32).clone()
+    y = ((torch.arange(24, dtype=D) - 11.5) / 30.0)[:, None]
+    cos = (1.0 - 3.0 * x).abs() / (10.0**0.5 * (1.0 + x * x + y * y).sqrt())  # |n . ray| / |ray|, (24, 32)
+    expected = (cos / 0.5).clamp(max=1.0)
+    w = slant_weight(steep, params, 0.5)[0, 0]
+    torch.testing.assert_close(w[1:-1, 1:-1], expected[1:-1, 1:-1])
+    assert w[:, 20:-1].max() < 0.5  # grazing part strongly down-weighted
+
+
+def test_occluded_pixels_are_down_weighted_photometric_only_as_the_paper_or_in_both_terms(problem):
+    level, state = problem
+    cfg = SfMConfig(occlusion_weight=0.1, occlusion_geometric=False)  # the paper's (v)
+    # Push frame 1's surface much closer (proximity + 0.3): points of 0 warped into 1 lie far behind it.
+    near = type(level)(**{**level.__dict__, "prox0": level.prox0 + torch.tensor([0, 0.3, 0], dtype=D)[:, None,
+                                                                                                    None, None]})
+    ev = evaluate_pairs(near, PAIRS, state.poses, state.codes, state.affine, cfg)
+    p = 0  # pair (0, 1)
+    valid = ev.valid[p, 0]
+    w_slant = ev.fixed_weight[p, 1]  # geometric: slant weight only
+    torch.testing.assert_close(ev.fixed_weight[p, 0][valid], 0.1 * w_slant[valid])
+    ev_geo = evaluate_pairs(near, PAIRS, state.poses, state.codes, state.affine,
+                            SfMConfig(occlusion_weight=0.1, occlusion_geometric=True))
+    torch.testing.assert_close(ev_geo.fixed_weight[p, 1][valid], 0.1 * w_slant[valid])
+
+
+def test_uncertainty_widens_the_geometric_sigma(problem):
+    level, state = problem
+    b = torch.full_like(level.prox0, 0.03)
+    lv = type(level)(**{**level.__dict__, "uncertainty": b})
+    ev = evaluate_pairs(lv, PAIRS, state.poses, state.codes, state.affine, SfMConfig(use_uncertainty=True))
+    t = 1  # geometric
+    expected = torch.tensor((0.02**2 + 4 * 0.03**2) ** 0.5, dtype=D)
+    torch.testing.assert_close(ev.sigma[:, t][ev.valid[:, t]], expected.expand(int(ev.valid[:, t].sum())))
+
+
+def test_code_blocks_of_a_pair_touch_only_its_frames(problem):
+    level, state = problem
+    cfg = SfMConfig(gradient_mode="interpolant")
+    layout = _layout()
+    ev = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cfg)
+    J = dense_jacobian(pair_jacobians(level, PAIRS, ev), PAIRS, state.poses, level, layout)
+    J = J.reshape(4, 2, -1, layout.dim)
+    sl = layout.slice(BlockId(CODE, 2))
+    assert J[0, :, :, sl].abs().max() == 0  # pair (0, 1) does not see frame 2's code
+    assert J[2, 0, :, layout.slice(BlockId(CODE, 0))].abs().max() == 0  # photometric: no code of B
+
+
+def test_geometric_lookups_touching_a_hole_of_b_are_masked(problem):
+    level, state = problem
+    prox0 = level.prox0.clone()
+    jac = level.jac.clone()
+    prox0[1, :, 8:14, 10:20] = 0.0  # a hole (the invalid sentinel) in frame 1's proximity
+    jac[1, :, 8:14, 10:20] = 0.0
+    holey = type(level)(**{**level.__dict__, "prox0": prox0, "jac": jac})
+    ev = evaluate_pairs(holey, PAIRS, state.poses, state.codes, state.affine, SfMConfig())
+    p = 0  # pair (0, 1): B = 1
+    u, v = ev.v[p].unbind(-1)
+    near = (u > 10 - 1) & (u < 19 + 1) & (v > 8 - 1) & (v < 13 + 1) & ev.valid[p, 0]
+    assert near.sum() > 10
+    assert not ev.valid[p, 1][near].any()  # geometric: masked
+    assert ev.valid[p, 0][near].all()  # photometric: images have no holes

@@ -1,0 +1,177 @@
+"""Levenberg-Marquardt and N-frame SfM on the synthetic room: pose and code recovery, monotone cost, step
+rejection, gauge."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from sfm_scene import look_pose, make_frames
+
+from codeslam.errors import CodeSLAMError
+from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+from codeslam.geometry.proximity import depth_to_prox
+from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.keyframes import Keyframe, build_levels
+from codeslam.sfm.pairs import master_pairs
+from codeslam.sfm.solver import PairProblem, levenberg_marquardt, sfm, solve_damped
+from codeslam.sfm.variables import CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
+
+D = torch.float64
+GT_POSES = [look_pose(), look_pose((0.25, -0.05, 0.05), (0.02, -0.04, 0.01)),
+            look_pose((-0.2, 0.08, 0.1), (-0.01, 0.05, 0.0)), look_pose((0.05, 0.15, -0.1), (0.04, 0.0, 0.02))]
+
+
+def _pose_error(T, T_gt):
+    e = se3_log(T @ se3_inverse(T_gt))
+    return float(e[:3].norm()), math.degrees(float(e[3:].norm()))
+
+
+def _all_codes_fixed(n):
+    return [BlockId(POSE, 0)] + [BlockId(CODE, i) for i in range(n)]
+
+
+def test_two_frame_lm_recovers_the_relative_pose_with_monotone_cost():
+    kfs, codes, gt = make_frames(GT_POSES[:2], panel=False, seed=1)
+    init = gt.clone()
+    init[1] = se3_exp(torch.tensor([-0.08, 0.03, 0.04, 0.02, -0.02, 0.01], dtype=D)) @ gt[1]
+    res = sfm(kfs, [(0, 1), (1, 0)], SfMConfig(), poses_init=init, codes_init=codes, fixed=_all_codes_fixed(2))
+    t_err, r_err = _pose_error(res.poses[1], gt[1])
+    t0, r0 = _pose_error(init[1], gt[1])
+    assert t_err < 0.003 and r_err < 0.1, (t_err, r_err, t0, r0)
+    for _, rep in res.levels:
+        assert all(b < a for a, b in zip(rep.costs, rep.costs[1:]))  # strictly decreasing over accepted steps
+        assert rep.accepted >= 1
+    torch.testing.assert_close(res.poses[0], gt[0])  # the gauge never moves
+    torch.testing.assert_close(res.codes, codes)  # fixed blocks never move
+
+
+def test_codes_are_recovered_from_multiple_views_with_known_poses():
+    kfs, codes, gt = make_frames(GT_POSES[:3], panel=False, seed=2, code_size=6)
+    fixed = [BlockId(POSE, i) for i in range(3)]
+    cfg = SfMConfig(code_prior_weight=1e-3)
+    res = sfm(kfs, master_pairs(3, 0), cfg, poses_init=gt, fixed=fixed)
+    err0 = codes.norm(dim=1)  # zero code start
+    err = (res.codes - codes).norm(dim=1)
+    assert (err < 0.05 * err0).all(), (err, err0)
+
+
+def _scaled_prox_rmse(dec, code, code_gt):
+    """Proximity RMSE after aligning the depth scale (monocular SfM fixes scale only through priors)."""
+    depth, depth_gt = dec.depth(code), dec.depth(code_gt)
+    s = (depth_gt / depth).median()
+    return float((depth_to_prox(s * depth, dec.avg_depth) - dec.prox(code_gt)).square().mean().sqrt()), float(s)
+
+
+def test_joint_sfm_from_identity_and_zero_codes_recovers_depth_scale_and_poses():
+    """Poses at identity and codes at zero (the paper's start); no occluders, so the optimum is the truth."""
+    kfs, codes, gt = make_frames(GT_POSES, panel=False, seed=3, code_size=8)
+    res = sfm(kfs, master_pairs(4, 0), SfMConfig())
+    rmse0, _ = _scaled_prox_rmse(kfs[0].decoder, torch.zeros(8, dtype=D), codes[0])
+    rmse, s = _scaled_prox_rmse(kfs[0].decoder, res.codes[0], codes[0])
+    assert rmse < 0.02 * rmse0 and abs(s - 1) < 0.01, (rmse, rmse0, s)
+    for i in range(1, 4):
+        t_err, r_err = _pose_error(res.poses[i], gt[i])
+        assert t_err < 0.005 and r_err < 0.1, (i, t_err, r_err)
+    assert res.iterations > 0 and res.ms_per_iteration > 0
+
+
+def test_joint_sfm_with_occlusions_still_improves_the_master_depth():
+    """With an occluding panel the occlusion edges bias the optimum slightly (measured: scale 8%, 0.2 degrees)."""
+    kfs, codes, gt = make_frames(GT_POSES, panel=True, seed=3, code_size=8)
+    res = sfm(kfs, master_pairs(4, 0), SfMConfig())
+    rmse0, _ = _scaled_prox_rmse(kfs[0].decoder, torch.zeros(8, dtype=D), codes[0])
+    rmse, s = _scaled_prox_rmse(kfs[0].decoder, res.codes[0], codes[0])
+    assert rmse < 0.1 * rmse0 and abs(s - 1) < 0.15, (rmse, rmse0, s)
+    for i in range(1, 4):
+        assert _pose_error(res.poses[i], gt[i])[1] < 0.5
+
+
+class _NaNOnce:
+    """A problem whose first trial step evaluates to NaN (then behaves normally)."""
+
+    def __init__(self, inner):
+        self.inner, self.calls = inner, 0
+
+    def evaluate(self, state):
+        self.calls += 1
+        cost, cache = self.inner.evaluate(state)
+        return (math.nan if self.calls == 2 else cost), cache
+
+    def linearize(self, *args, **kwargs):
+        return self.inner.linearize(*args, **kwargs)
+
+
+def test_a_nan_step_is_rejected_with_more_damping_and_the_state_kept():
+    kfs, codes, gt = make_frames(GT_POSES[:2], panel=False, seed=1, levels=1, width=32, height=24)
+    level = build_levels(kfs, [0])[0]
+    cfg = SfMConfig(initial_damping=1e-3)
+    init = gt.clone()
+    init[1] = se3_exp(torch.tensor([0.03, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=D)) @ gt[1]
+    state = SfMState(init, codes.clone(), torch.zeros(2, 2, dtype=D))
+    layout = VariableLayout.for_sfm(2, 8, 2, True, fixed=_all_codes_fixed(2))
+    problem = _NaNOnce(PairProblem(level, torch.tensor([[0, 1], [1, 0]]), cfg))
+    one, rep1 = levenberg_marquardt(problem, state, layout, cfg, 1)
+    assert rep1.rejected == 1 and rep1.accepted == 0 and rep1.damping == pytest.approx(1e-2)
+    torch.testing.assert_close(one.poses, state.poses)
+    problem.calls = 0
+    out, rep = levenberg_marquardt(problem, state, layout, cfg, 5)
+    assert rep.rejected >= 1 and rep.accepted >= 1
+    assert rep.costs[-1] < rep.costs[0] and math.isfinite(rep.costs[-1])
+
+
+def test_an_indefinite_system_is_refused_by_the_cholesky_solve():
+    H = torch.diag(torch.tensor([1.0, -2.0], dtype=D))
+    assert solve_damped(H, torch.ones(2, dtype=D), 1e-3, 1e-6) is None
+    H = torch.tensor([[2.0, 1.0], [1.0, 3.0]], dtype=D)
+    delta = solve_damped(H, torch.tensor([1.0, -1.0], dtype=D), 0.0, 1e-6)
+    torch.testing.assert_close(H @ delta, torch.tensor([-1.0, 1.0], dtype=D))
+
+
+def test_bad_pairs_are_user_errors():
+    kfs, _, _ = make_frames(GT_POSES[:2], panel=False, levels=1, width=32, height=24)
+    cfg = SfMConfig(pyramid_levels=(0,), max_iterations=(1,))
+    for bad in ([(0, 0)], [(0, 2)], []):
+        with pytest.raises(CodeSLAMError):
+            sfm(kfs, bad, cfg)
+
+
+def test_tracking_reuses_the_solver_with_only_the_current_pose_free():
+    """The tracker's use: keyframe (decoded depth) -> current frame (no decoder), photometric only."""
+    kfs, codes, gt = make_frames(GT_POSES[:2], panel=True, seed=1)
+    current = Keyframe(kfs[1].image, kfs[1].camera, None)
+    cfg = SfMConfig(geometric=False)
+    init = gt.clone()
+    init[1] = se3_exp(torch.tensor([0.05, -0.03, 0.02, 0.01, 0.02, 0.0], dtype=D)) @ gt[1]
+    res = sfm([kfs[0], current], [(0, 1)], cfg, poses_init=init, codes_init=codes,
+              fixed=[BlockId(POSE, 0), BlockId(CODE, 0)])
+    t_err, r_err = _pose_error(res.poses[1], gt[1])
+    assert t_err < 0.01 and r_err < 0.2, (t_err, r_err)
+    torch.testing.assert_close(res.codes, codes)
+    assert res.depths([kfs[0], current])[1] is None
+
+
+def test_a_strong_linear_prior_pins_its_block():
+    kfs, codes, gt = make_frames(GT_POSES[:2], panel=False, seed=1, levels=1, width=32, height=24)
+    target = se3_exp(torch.tensor([0.02, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ gt[1]
+    prior = LinearPrior([BlockId(POSE, 1)], 1e12 * torch.eye(6, dtype=D), torch.zeros(6, dtype=D), [target])
+    cfg = SfMConfig(pyramid_levels=(0,), max_iterations=(10,))
+    res = sfm(kfs, [(0, 1), (1, 0)], cfg, poses_init=gt, codes_init=codes, fixed=_all_codes_fixed(2),
+              priors=[prior])
+    t_err, r_err = _pose_error(res.poses[1], target)
+    assert t_err < 1e-4 and r_err < 1e-3
+    free = sfm(kfs, [(0, 1), (1, 0)], cfg, poses_init=gt, codes_init=codes, fixed=_all_codes_fixed(2))
+    assert _pose_error(free.poses[1], target)[0] > 0.01  # without the prior the data wins
+
+
+def test_float32_problem_converges_like_float64():
+    kfs, codes, gt = make_frames(GT_POSES[:2], panel=False, seed=1)
+    kfs32 = [Keyframe(k.image.float(), k.camera, k.decoder.to(torch.float32)) for k in kfs]
+    init = gt.clone()
+    init[1] = se3_exp(torch.tensor([-0.06, 0.03, 0.03, 0.02, -0.02, 0.01], dtype=D)) @ gt[1]
+    res = sfm(kfs32, [(0, 1), (1, 0)], SfMConfig(), poses_init=init.float(), codes_init=codes.float(),
+              fixed=_all_codes_fixed(2))
+    assert res.poses.dtype == torch.float32
+    t_err, r_err = _pose_error(res.poses[1].double(), gt[1])
+    assert t_err < 0.003 and r_err < 0.1, (t_err, r_err)
