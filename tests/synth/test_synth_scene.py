@@ -1,0 +1,53 @@
+"""Procedural rooms: reproducible, different per seed, objects inside the room and standing on something."""
+
+from __future__ import annotations
+
+import torch
+
+from codeslam.synth import textures as tx
+from codeslam.synth.scene import build_scene
+
+
+def test_same_seed_same_scene_other_seed_differs():
+    a, b, c = build_scene(21), build_scene(21), build_scene(22)
+    for pa, pb in zip(a.prims, b.prims):
+        assert torch.equal(pa.center, pb.center) and torch.equal(pa.half, pb.half)
+    assert torch.equal(a.materials, b.materials)
+    assert a.size != c.size
+
+
+def test_scenes_are_furnished_rooms():
+    for seed in range(6):
+        s = build_scene(seed)
+        W, D, H = s.size
+        assert 3.0 <= W <= 7.0 and 3.0 <= D <= 7.5 and 2.4 <= H <= 3.1
+        assert s.num_primitives >= 20
+        kinds = s.materials[:, 0].round().long()
+        assert len(torch.unique(kinds)) >= 5  # varied materials
+        assert int(kinds.max()) < len(tx.KIND_NAMES)
+        assert s.light_pos.shape[0] >= 1
+        for pr in s.prims:
+            if len(pr) == 0:
+                continue
+            ext = pr.world_half_extents()
+            lo, hi = pr.center - ext, pr.center + ext
+            # inside the walls and above the floor (ceiling lamps are sunk into the ceiling, so z may exceed H)
+            assert bool((lo >= -1e-3).all()) and bool((hi[:, :2] <= s.room_hi[:2] + 1e-3).all())
+        # at least half of the room's floor area is free to walk through
+        g = torch.stack(torch.meshgrid(torch.linspace(0.2, W - 0.2, 20), torch.linspace(0.2, D - 0.2, 20),
+                                       indexing="ij"), -1).reshape(-1, 2)
+        pts = torch.cat([g, torch.full((len(g), 1), 1.2)], -1)
+        assert float((s.free_distance(pts) > 0.2).float().mean()) > 0.3
+
+
+def test_albedo_is_deterministic_and_in_range():
+    s = build_scene(3)
+    m = s.materials
+    p = torch.rand(len(m), 3, generator=torch.Generator().manual_seed(0)) * 3
+    n = torch.nn.functional.normalize(torch.randn(len(m), 3, generator=torch.Generator().manual_seed(1)), dim=-1)
+    a1 = tx.albedo(p, n, m)
+    a2 = tx.albedo(p.clone(), n.clone(), m.clone())
+    assert torch.equal(a1, a2)
+    assert float(a1.min()) >= 0.0 and float(a1.max()) <= 1.0
+    v = tx.value_noise3(torch.rand(1000, 3) * 20)
+    assert float(v.min()) >= 0.0 and float(v.max()) <= 1.0 and float(v.std()) > 0.05
