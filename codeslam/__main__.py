@@ -1,0 +1,8 @@
+"""``python -m codeslam`` (and ``torchrun -m codeslam train ...``): the ``codeslam`` command."""
+
+import sys
+
+from codeslam.cli import main
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,100 @@
+"""``codeslam train``: train the code network on generator shards and/or RGB-D dataset folders.
+
+Single process: ``codeslam train --data DIR --out RUN``; several processes / GPUs / nodes:
+``torchrun --nproc_per_node N -m codeslam train --data DIR --out RUN`` (DDP; --batch-size is per process).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import typer
+
+from codeslam.cli.app import app
+from codeslam.errors import ConfigError
+
+
+def _parse_size(size: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in size.lower().split("x"))
+    except ValueError:
+        raise ConfigError(f"--size must look like WIDTHxHEIGHT (e.g. 128x96), got {size!r}") from None
+    return w, h
+
+
+#: training options a resumed run may change
+_RESUME_MUTABLE = ("steps", "workers", "device")
+
+
+def _check_resumable(saved, requested) -> None:
+    """ConfigError naming the first option that would change a resumed run's network or training."""
+    a = {**{f"network.{k}": v for k, v in saved.network.to_dict().items()},
+         **{f"train.{k}": v for k, v in saved.train.to_dict().items() if k not in _RESUME_MUTABLE}}
+    b = {**{f"network.{k}": v for k, v in requested.network.to_dict().items()},
+         **{f"train.{k}": v for k, v in requested.train.to_dict().items() if k not in _RESUME_MUTABLE}}
+    changed = [k for k in a if a[k] != b[k]]
+    if changed:
+        k = changed[0]
+        raise ConfigError(f"--resume cannot change {k} ({a[k]} in the checkpoint, {b[k]} requested); only "
+                          f"{', '.join('--' + m for m in _RESUME_MUTABLE)} may change")
+
+
+@app.command("train")
+def train_command(
+    data: list[Path] = typer.Option(..., "--data", help="Shard folder(s) (shard_*.safetensors) or RGB-D dataset "
+                                    "folder(s): --data DIR [DIR ...] (or repeat --data)."),
+    more_data: list[Path] | None = typer.Argument(None, hidden=True, help="Further --data folders."),
+    out: Path = typer.Option(..., "--out", help="Run folder: config.yaml, log.csv, val.csv, checkpoint, weights."),
+    config: Path | None = typer.Option(None, "--config", help="YAML with 'network:' and/or 'train:' sections."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
+    steps: int | None = typer.Option(None, "--steps", help="Total optimiser steps (the schedule's length)."),
+    batch_size: int | None = typer.Option(None, "--batch-size", help="Images per step per process."),
+    code_size: int | None = typer.Option(None, "--code-size", help="Code entries (128 default, 32 for speed)."),
+    size: str | None = typer.Option(None, "--size", help="Canonical image size WIDTHxHEIGHT, multiples of 16."),
+    workers: int | None = typer.Option(None, "--workers", help="Threads that load and resample dataset frames."),
+    seed: int | None = typer.Option(None, "--seed", help="Seed of weights, data order and augmentation."),
+    device: str | None = typer.Option(None, "--device", help="cpu, cuda or cuda:N."),
+    stop_after: int | None = typer.Option(None, "--stop-after", help="Stop (with a checkpoint) after this many "
+                                          "steps as if interrupted; --resume continues it."),
+    threads: int | None = typer.Option(None, "--threads", help="torch CPU threads (default: torch's choice; "
+                                       "under torchrun on CPU: cores / processes)."),
+    no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar (log lines only)."),
+) -> None:
+    """Train the intensity-conditioned depth auto-encoder (paper Sec. 2) and write RUN/weights.safetensors."""
+    import torch
+
+    from codeslam.network.config import RunConfig, load_run_config, overlay
+    from codeslam.network.train import read_run_config, train
+
+    if threads is not None:
+        if threads < 1:
+            raise ConfigError(f"--threads must be >= 1, got {threads}")
+        torch.set_num_threads(threads)
+    elif int(os.environ.get("LOCAL_WORLD_SIZE", "1")) > 1 and not (device or "").startswith("cuda"):
+        torch.set_num_threads(max(1, (os.cpu_count() or 1) // int(os.environ["LOCAL_WORLD_SIZE"])))
+
+    net_opts: dict = {}
+    if code_size is not None:
+        net_opts["code_size"] = code_size
+    if size is not None:
+        net_opts["width"], net_opts["height"] = _parse_size(size)
+    train_opts = {k: v for k, v in dict(steps=steps, batch_size=batch_size, workers=workers, seed=seed,
+                                         device=device).items() if v is not None}
+
+    if resume and (out / "checkpoint.safetensors").is_file():
+        # the checkpoint's configuration, with the given file / options applied on top: they may repeat the
+        # original command, but only --steps, --workers and --device may change a resumed run
+        saved = read_run_config(out)
+        base = load_run_config(config, base=saved)
+        run_config = RunConfig(overlay(base.network, net_opts), overlay(base.train, train_opts))
+        _check_resumable(saved, run_config)
+    else:
+        base = load_run_config(config)
+        run_config = RunConfig(overlay(base.network, net_opts), overlay(base.train, train_opts))
+    sources = [*data, *(more_data or [])]
+    result = train(sources, out, run_config, resume=resume, stop_after=stop_after, progress=not no_progress)
+    if int(os.environ.get("RANK", "0")) == 0:
+        status = "finished" if result.finished else "stopped"
+        val = "  ".join(f"{k} {v:.4f}" for k, v in result.val.items())
+        print(f"{status} at step {result.step}: loss {result.last_loss:.4f}  {val}".rstrip())
