@@ -20,3 +20,7 @@ class WeightsError(CodeSLAMError):
 
 class ConfigError(CodeSLAMError):
     """A configuration file or option is malformed."""
+
+
+class OutputError(CodeSLAMError):
+    """An output file or folder cannot be written (its folder is a file, no permission, disk full)."""

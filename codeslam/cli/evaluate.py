@@ -27,11 +27,15 @@ def eval_command(
     """Absolute trajectory error (after alignment) and relative pose error of ESTIMATE against GROUNDTRUTH."""
     from codeslam.eval import metrics
     from codeslam.eval.load import load_trajectory
+    from codeslam.io import check_output_file
 
     if align not in metrics.ALIGN_MODES:
         raise ConfigError(f"--align must be one of {', '.join(metrics.ALIGN_MODES)}, got {align!r}")
     if delta_unit not in ("frames", "m"):
         raise ConfigError(f"--delta-unit must be 'frames' or 'm', got {delta_unit!r}")
+    for out_path in (json_out, plot, drift_plot):  # refuse unwritable outputs before the work
+        if out_path is not None:
+            check_output_file(out_path)
     est = load_trajectory(estimate)
     ref = load_trajectory(groundtruth)
     ev = metrics.evaluate(est, ref, align=align, delta=delta, delta_unit=delta_unit, max_diff=max_diff)

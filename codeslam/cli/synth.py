@@ -48,11 +48,14 @@ def synth_command(
     from rich.console import Console
 
     from codeslam.geometry.camera import canonical_camera
-    from codeslam.io import write_json
+    from codeslam.io import check_output_dir, check_output_file, write_json
     from codeslam.synth.render import RenderConfig
 
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
+    check_output_dir(out)  # refuse unwritable outputs before rendering
+    if json_out is not None:
+        check_output_file(json_out)
     # This command owns its process: render single-threaded, like the workers. The renderer works on
     # cache-sized chunks below torch's parallel grain; intra-op threads only add synchronisation, which
     # was measured to slow rendering down by 10-100x on a loaded machine.

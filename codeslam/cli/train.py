@@ -47,7 +47,8 @@ def train_command(
     more_data: list[Path] | None = typer.Argument(None, hidden=True, help="Further --data folders."),
     out: Path = typer.Option(..., "--out", help="Run folder: config.yaml, log.csv, val.csv, checkpoint, weights."),
     config: Path | None = typer.Option(None, "--config", help="YAML with 'network:' and/or 'train:' sections."),
-    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run in --out from its checkpoint "
+                                "(without one: a new run, with a warning)."),
     steps: int | None = typer.Option(None, "--steps", help="Total optimiser steps (the schedule's length)."),
     batch_size: int | None = typer.Option(None, "--batch-size", help="Images per step per process."),
     code_size: int | None = typer.Option(None, "--code-size", help="Code entries (128 default, 32 for speed)."),

@@ -59,6 +59,8 @@ def image_size(path: str | os.PathLike) -> tuple[int, int]:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"image file not found: {path}")
+    if path.stat().st_size == 0:
+        raise DatasetError(f"image file is empty: {path}")
     try:
         with Image.open(path) as im:
             return im.size

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -27,6 +28,9 @@ from codeslam.errors import ConfigError
 
 #: number of down-sampling stages of every branch; image sizes must be multiples of 2 ** this
 NUM_SCALES = 4
+#: largest magnitude of an integer option (a YAML integer can be arbitrarily large; torch needs int64 and
+#: no option of a network that fits in memory comes near this)
+MAX_CONFIG_INT = 2**31 - 1
 #: number of pyramid levels on which mu and b are predicted and the loss is evaluated (paper Sec. 2.1)
 NUM_LEVELS = 4
 
@@ -208,17 +212,21 @@ def _check_type(name: str, value: Any, default: Any) -> Any:
     if isinstance(default, int):
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{name} must be an integer, got {value!r}")
+        if abs(value) > MAX_CONFIG_INT:
+            raise ConfigError(f"{name} is out of range: {value}")
         return value
     if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{name} must be a number, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ConfigError(f"{name} must be a finite number, got {value!r}")
         return float(value)
     if isinstance(default, str):
         if not isinstance(value, str):
             raise ConfigError(f"{name} must be a string, got {value!r}")
         return value
     if isinstance(default, tuple):
-        if not isinstance(value, (list, tuple)) or not all(isinstance(v, int) for v in value):
+        if not isinstance(value, (list, tuple)) or not all(
+            isinstance(v, int) and not isinstance(v, bool) and abs(v) <= MAX_CONFIG_INT for v in value
+        ):
             raise ConfigError(f"{name} must be a list of integers, got {value!r}")
         return tuple(value)
     raise AssertionError(f"unhandled config field type for {name}")  # a bug in this module
@@ -264,6 +272,10 @@ def load_run_config(path: str | os.PathLike | None, base: RunConfig | None = Non
     unknown = sorted(set(data) - {"network", "train"})
     if unknown:
         raise ConfigError(f"config file {path}: unknown section(s) {', '.join(map(str, unknown))}")
+    for section in ("network", "train"):
+        if not isinstance(data.get(section) or {}, dict):
+            raise ConfigError(f"config file {path}: section '{section}' must be a mapping of options, "
+                              f"got {data[section]!r}")
     net = overlay(base.network, data.get("network") or {})
     tr = overlay(base.train, data.get("train") or {})
     return RunConfig(network=net, train=tr)

@@ -156,6 +156,8 @@ def load_training_data(
         else:
             blocks = [(str(p), read_sequence_to_canonical(p, camera, workers))]
         for name, (img, dep) in blocks:
+            if img.shape[0] and not bool(dep.any()):  # uint16, 0 = invalid: only masked-out pixels to train on
+                raise DatasetError(f"{name} holds no valid depth value in any of its {img.shape[0]} frames")
             images.append(img)
             depths.append(dep)
             groups.append((name, n, n + img.shape[0]))

@@ -31,7 +31,7 @@ import torch
 import torch.distributed as dist
 
 from codeslam.errors import ConfigError, WeightsError
-from codeslam.io import atomic_write
+from codeslam.io import atomic_write, check_output_dir, ensure_dir
 from codeslam.network.config import NUM_LEVELS, NetworkConfig, RunConfig, TrainConfig, dump_run_config
 from codeslam.network.data import (
     STEP_STREAM,
@@ -111,6 +111,12 @@ def _init_distributed(device: str) -> _Dist:
 
 
 def _resolve_device(device: str, d: _Dist) -> torch.device:
+    try:
+        kind = torch.device(device).type
+    except RuntimeError:
+        kind = None
+    if kind not in ("cpu", "cuda"):
+        raise ConfigError(f"--device must be cpu, cuda or cuda:N, got {device!r}")
     if device.startswith("cuda"):
         if not torch.cuda.is_available():
             raise ConfigError("--device cuda was requested but no CUDA device is available")
@@ -282,9 +288,44 @@ def train_step(
     return parts
 
 
+def _restore_checkpoint(
+    path: Path, model: CodeNetwork, opt: torch.optim.Optimizer, ncfg: NetworkConfig
+) -> tuple[int, dict]:
+    """Load model, Adam state and RNG state of the checkpoint ``path`` into ``model`` / ``opt`` -> (completed
+    steps, the checkpoint's extra progress dict). ConfigError when it holds another network; WeightsError when
+    it is incomplete or inconsistent (e.g. edited, or written by another version)."""
+    tensors, meta = read_tensors(path)
+    if meta.get("format") != CHECKPOINT_FORMAT:
+        raise WeightsError(f"{path} is not a codeslam training checkpoint")
+    try:
+        saved_net = NetworkConfig.from_dict(json.loads(meta["config"]))
+    except (KeyError, json.JSONDecodeError, ConfigError) as e:
+        raise WeightsError(f"{path} has no valid network config in its metadata ({e})") from None
+    if saved_net != ncfg:
+        raise ConfigError(f"{path} was trained with a different network config")
+    try:
+        model.load_state_dict({k[len(MODEL_PREFIX) :]: v for k, v in tensors.items() if k.startswith(MODEL_PREFIX)})
+        _load_optimizer(opt, tensors, meta["optim_param_groups"])
+        for p in model.parameters():  # Adam moments of another shape would only fail deep inside opt.step()
+            for key, value in opt.state.get(p, {}).items():
+                if key != "step" and torch.is_tensor(value) and value.shape != p.shape:
+                    raise ValueError(f"optimiser state {key} of shape {tuple(value.shape)} for a {tuple(p.shape)} "
+                                     "parameter")
+        torch.set_rng_state(tensors["rng.torch_cpu"])
+        start = int(meta["step"])
+        extra = json.loads(meta.get("extra", "{}"))
+        if start < 0 or not isinstance(extra, dict):
+            raise ValueError(f"step {start}, extra {extra!r}")
+    except (KeyError, ValueError, TypeError, RuntimeError, IndexError) as e:
+        msg = " ".join(str(e).split())[:300]
+        raise WeightsError(f"{path} is not a complete training checkpoint: {type(e).__name__}: {msg}") from None
+    return start, extra
+
+
 def _check_run_dir(run_dir: Path, resume: bool) -> bool:
     """-> whether a checkpoint exists to resume from; ConfigError when a finished or started run would be
-    overwritten."""
+    overwritten, OutputError when ``run_dir`` cannot be a folder (a file is in the way)."""
+    check_output_dir(run_dir)
     has_ckpt = (run_dir / CHECKPOINT_NAME).is_file()
     if not resume and (has_ckpt or (run_dir / WEIGHTS_NAME).is_file()):
         raise ConfigError(
@@ -340,21 +381,11 @@ def _train(data, run_dir, config, resume, stop_after, progress, log, store, d: _
     opt = torch.optim.Adam(model.parameters(), lr=tcfg.lr)
     start, elapsed_before, saved_extra = 0, 0.0, {}
     if can_resume:
-        tensors, meta = read_tensors(run_dir / CHECKPOINT_NAME)
-        saved_net = NetworkConfig.from_dict(json.loads(meta["config"]))
-        if saved_net != ncfg:
-            raise ConfigError(f"{run_dir / CHECKPOINT_NAME} was trained with a different network config")
-        model.load_state_dict({k[len(MODEL_PREFIX) :]: v for k, v in tensors.items() if k.startswith(MODEL_PREFIX)})
-        _load_optimizer(opt, tensors, meta["optim_param_groups"])
-        torch.set_rng_state(tensors["rng.torch_cpu"])
-        start = int(meta["step"])
-        saved_extra = json.loads(meta.get("extra", "{}"))
+        start, saved_extra = _restore_checkpoint(run_dir / CHECKPOINT_NAME, model, opt, ncfg)
         elapsed_before = float(saved_extra.get("elapsed_s", 0.0))
         say(f"resuming {run_dir} at step {start}")
-    if d.is_main:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        with atomic_write(run_dir / "config.yaml") as f:
-            f.write(dump_run_config(config))
+    elif resume:
+        say(f"warning: --resume: {run_dir} holds no {CHECKPOINT_NAME}; starting a new run")
 
     if store is None:
         store = load_training_data(list(data), model.camera, tcfg.workers, log=say)
@@ -368,6 +399,10 @@ def _train(data, run_dir, config, resume, stop_after, progress, log, store, d: _
         f"{len(train_idx)} training / {len(val_idx)} validation frames, {order.steps_per_epoch} steps per epoch, "
         f"{d.world} process(es), device {device}"
     )
+    if d.is_main:  # only once the data has loaded: a run that cannot start leaves no run folder behind
+        ensure_dir(run_dir)
+        with atomic_write(run_dir / "config.yaml") as f:
+            f.write(dump_run_config(config))
 
     net: torch.nn.Module = model
     if d.world > 1:

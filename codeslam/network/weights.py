@@ -30,6 +30,14 @@ DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "codeslam_de
 _PICKLE_MAGIC = (b"PK\x03\x04", b"\x80")  # torch.save zip archive, raw pickle protocol >= 2
 
 
+def _starts_like_pickle(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(4).startswith(_PICKLE_MAGIC)
+    except OSError:
+        return False
+
+
 def save_tensors(path: str | os.PathLike, tensors: dict[str, torch.Tensor], metadata: dict[str, str]) -> None:
     """Write ``tensors`` (moved to CPU, made contiguous) and string ``metadata`` to ``path`` atomically."""
     from safetensors.torch import save_file
@@ -47,18 +55,18 @@ def read_tensors(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], dict
     path = Path(path)
     if not path.is_file():
         raise WeightsError(f"weights file not found: {path}")
-    with open(path, "rb") as f:
-        head = f.read(4)
-    if head.startswith(_PICKLE_MAGIC):
-        raise WeightsError(
-            f"{path} looks like a PyTorch pickle checkpoint; codeslam only reads safetensors weights "
-            "(it never unpickles files, which can run arbitrary code)"
-        )
-    try:
+    try:  # safetensors parses a length-prefixed JSON header and raw tensor bytes: nothing in the file is executed
         with safe_open(str(path), framework="pt") as f:
             metadata = dict(f.metadata() or {})
             tensors = {k: f.get_tensor(k) for k in f.keys()}
     except (SafetensorError, OSError, ValueError, RuntimeError) as e:
+        # The pickle test comes only after parsing failed: a valid safetensors file whose header length has
+        # 0x80 as its low byte also starts with the pickle magic byte.
+        if _starts_like_pickle(path):
+            raise WeightsError(
+                f"{path} looks like a PyTorch pickle checkpoint; codeslam only reads safetensors weights "
+                "(it never unpickles files, which can run arbitrary code)"
+            ) from None
         msg = " ".join(str(e).split())
         raise WeightsError(f"{path} is not a readable safetensors file (truncated or corrupt?): {msg}") from None
     return tensors, metadata
@@ -131,5 +139,9 @@ def load_model(
             shapes = f"{tuple(tensors[k].shape)} vs {tuple(expected[k].shape)}"
             parts.append(f"{len(wrong)} of the wrong shape e.g. {k} {shapes}")
         raise WeightsError(f"{path} does not match its own network config: " + "; ".join(parts))
+    # a diverged training run saves NaN weights: refuse them rather than predict NaN depth everywhere
+    bad = sorted(k for k, v in tensors.items() if v.is_floating_point() and not bool(torch.isfinite(v).all()))
+    if bad:
+        raise WeightsError(f"{path} holds non-finite values (NaN or inf) in {len(bad)} tensor(s), e.g. {bad[0]}")
     model.load_state_dict(tensors)
     return model.to(device).eval()

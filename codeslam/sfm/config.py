@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 
 from codeslam.errors import ConfigError
@@ -99,6 +100,12 @@ class SfMConfig:
             raise ConfigError("SfM config: affine_prior_sigma must be two positive numbers")
         if self.code_prior_weight < 0 or self.occlusion_weight < 0 or self.border < 0:
             raise ConfigError("SfM config: code_prior_weight, occlusion_weight and border must be >= 0")
+        if any(n < 0 for n in self.max_iterations):
+            raise ConfigError(f"SfM config: max_iterations must be >= 0, got {self.max_iterations}")
+        for name in ("initial_damping", "min_diagonal", "relative_cost_tolerance", "step_tolerance",
+                     "occlusion_margin"):
+            if not getattr(self, name) >= 0:  # "not >=" also refuses NaN
+                raise ConfigError(f"SfM config: {name} must be >= 0, got {getattr(self, name)}")
 
     @property
     def residual_types(self) -> tuple[str, ...]:
@@ -117,7 +124,37 @@ class SfMConfig:
         unknown = sorted(set(d) - known)
         if unknown:
             raise ConfigError(f"unknown SfM option(s): {', '.join(unknown)} (known: {', '.join(sorted(known))})")
-        try:
-            return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
-        except TypeError as e:  # wrong value types surface from the comparisons in __post_init__
-            raise ConfigError(f"SfM config: {e}") from None
+        defaults = cls()
+        return cls(**{k: _checked(k, v, getattr(defaults, k)) for k, v in d.items()})
+
+
+def _checked(name: str, value, default):
+    """A (YAML) value of the type of the field's default -- bools, integers, finite numbers, strings, tuples of
+    integers or of numbers -- or ConfigError naming the field."""
+
+    def is_int(v) -> bool:
+        return isinstance(v, int) and not isinstance(v, bool)
+
+    def is_number(v) -> bool:
+        return (isinstance(v, float) or is_int(v)) and math.isfinite(v)
+
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+        kind = "true or false"
+    elif isinstance(default, int):
+        ok = is_int(value)
+        kind = "an integer"
+    elif isinstance(default, float):
+        ok = is_number(value)
+        kind = "a finite number"
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+        kind = "a string"
+    else:  # a tuple
+        elem = is_int if all(is_int(v) for v in default) else is_number
+        ok = isinstance(value, (list, tuple)) and all(elem(v) for v in value)
+        kind = "a list of integers" if elem is is_int else "a list of numbers"
+        value = tuple(value) if ok else value
+    if not ok:
+        raise ConfigError(f"SfM config: {name} must be {kind}, got {value!r}")
+    return float(value) if isinstance(default, float) else value

@@ -21,7 +21,7 @@ from codeslam.data.imageio import write_depth_png, write_rgb_png
 from codeslam.errors import CodeSLAMError
 from codeslam.eval.trajectory import Trajectory, write_tum
 from codeslam.geometry.camera import PinholeCamera, canonical_camera
-from codeslam.io import atomic_write
+from codeslam.io import atomic_write, ensure_dir
 from codeslam.synth.render import RenderConfig, render
 from codeslam.synth.scene import build_scene
 from codeslam.synth.shards import DEPTH_FACTOR
@@ -105,6 +105,9 @@ def generate_sequences(
     dict (scenes, frames, size, seed, seconds, fps, paths)."""
     if scenes < 1:
         raise CodeSLAMError(f"--scenes must be at least 1, got {scenes}")
+    if frames < 1:
+        raise CodeSLAMError(f"--frames must be at least 1, got {frames}")
+    ensure_dir(out_dir)  # fails before rendering when OUT (or a parent) is a file
     camera = canonical_camera(256, 192) if camera is None else camera
     t0 = time.perf_counter()
     jobs = [(Path(out_dir) / f"scene_{i:03d}", scene_seed(seed, i), frames, camera, config, fps)

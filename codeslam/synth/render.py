@@ -24,6 +24,7 @@ per-frame, view-dependent effects are the optional sensor effects (Gaussian nois
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -85,9 +86,13 @@ class RenderConfig:
     def __post_init__(self) -> None:
         if self.supersample < 1:
             raise CodeSLAMError(f"supersample must be >= 1, got {self.supersample}")
-        if self.noise_std < 0 or self.blur_sigma < 0 or self.ao_samples < 0:
-            raise CodeSLAMError("noise_std, blur_sigma and ao_samples must be non-negative")
-        if self.max_depth <= 0:
+        # written as "not x >= 0" so that NaN (which compares false with everything) is refused too
+        if not (self.noise_std >= 0 and self.blur_sigma >= 0 and self.ao_samples >= 0 and self.ao_radius >= 0):
+            raise CodeSLAMError("noise_std, blur_sigma, ao_samples and ao_radius must be non-negative")
+        if not (math.isfinite(self.noise_std) and math.isfinite(self.blur_sigma) and math.isfinite(self.ao_radius)):
+            raise CodeSLAMError(f"noise_std, blur_sigma and ao_radius must be finite, got {self.noise_std}, "
+                                f"{self.blur_sigma}, {self.ao_radius}")
+        if not self.max_depth > 0:
             raise CodeSLAMError(f"max_depth must be positive, got {self.max_depth}")
 
 

@@ -29,7 +29,7 @@ import torch
 
 from codeslam.errors import CodeSLAMError, DatasetError
 from codeslam.geometry.camera import PinholeCamera
-from codeslam.io import atomic_path
+from codeslam.io import atomic_path, ensure_dir
 from codeslam.synth.render import RenderConfig, depth_to_uint16, render, to_uint8
 from codeslam.synth.scene import build_scene
 from codeslam.synth.trajectory import random_views
@@ -183,8 +183,7 @@ def write_shards(spec: ShardSpec, out_dir: str | Path, workers: int = 1, progres
     as ``progress(done, total)`` after each shard. Returns a summary dict (shards, views, written, skipped,
     seconds, views_per_second, paths).
     """
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir = ensure_dir(out_dir)
     todo = [i for i in range(spec.num_shards) if not shard_is_complete(spec, out_dir, i)]
     t0 = time.perf_counter()
     done = spec.num_shards - len(todo)
@@ -240,11 +239,16 @@ def read_shard(path: str | Path) -> tuple[torch.Tensor, torch.Tensor, PinholeCam
         camera = PinholeCamera(cam["fx"], cam["fy"], cam["cx"], cam["cy"], int(cam["width"]), int(cam["height"]),
                                tuple(cam.get("dist", (0.0,) * 5)))
         factor = float(meta["depth_factor"])
-    except (KeyError, ValueError, TypeError) as e:
+    except (KeyError, ValueError, TypeError, CodeSLAMError) as e:
         raise DatasetError(f"shard {path} has malformed metadata: {e}") from None
+    if not (math.isfinite(factor) and factor > 0):
+        raise DatasetError(f"shard {path} has malformed metadata: depth_factor must be positive, got {factor}")
     if image.dtype != torch.uint8 or image.ndim != 4 or image.shape[1] != 3:
         raise DatasetError(f"shard {path}: image must be (M, 3, H, W) uint8, got {tuple(image.shape)} {image.dtype}")
     if depth_raw.shape != (image.shape[0],) + tuple(image.shape[2:]):
         raise DatasetError(f"shard {path}: depth shape {tuple(depth_raw.shape)} does not match the images")
+    if (camera.width, camera.height) != (image.shape[3], image.shape[2]):
+        raise DatasetError(f"shard {path}: images are {image.shape[3]}x{image.shape[2]} but its camera is "
+                           f"{camera.width}x{camera.height}")
     depth = depth_raw.to(torch.int32).to(torch.float32) / factor
     return image, depth, camera
