@@ -110,3 +110,12 @@ def write_json(path: str | os.PathLike, obj: Any) -> None:
     with atomic_write(path, "w") as f:
         json.dump(obj, f, indent=2, sort_keys=True)
         f.write("\n")
+
+
+def check_outputs(out_dir: str | os.PathLike | None, json_file: str | os.PathLike | None) -> None:
+    """Check a command's ``--out`` folder and ``--json`` file (either may be None) before it does any work, so a
+    bad path fails at once instead of after a complete-looking output folder was written."""
+    if out_dir is not None:
+        check_output_dir(out_dir)
+    if json_file is not None:
+        check_output_file(json_file)

@@ -24,6 +24,7 @@ import typer
 
 from codeslam.cli.app import app
 from codeslam.errors import ConfigError, DatasetError
+from codeslam.io import check_outputs
 
 #: depth PNG scale (TUM: value / 5000 = metres)
 DEPTH_PNG_FACTOR = 5000.0
@@ -159,6 +160,7 @@ def depth_command(
 
     set_threads(threads)
     check_device(device)
+    check_outputs(out, json_out)  # refuse bad output paths before any work
     modes = parse_modes(mode)
     sigma = FIT_PROX_SIGMA if fit_sigma is None else fit_sigma
     if not (math.isfinite(sigma) and sigma > 0):

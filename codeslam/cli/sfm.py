@@ -30,6 +30,7 @@ import typer
 
 from codeslam.cli.app import app
 from codeslam.errors import ConfigError
+from codeslam.io import check_outputs
 
 PAIR_MODES = ("master", "all")
 
@@ -77,6 +78,7 @@ def sfm_command(
 
     set_threads(threads)
     check_device(device)
+    check_outputs(out, json_out)  # refuse bad output paths before any work
     if pairs not in PAIR_MODES:
         raise ConfigError(f"--pairs must be one of {', '.join(PAIR_MODES)}, got {pairs!r}")
     cfg = _load_sfm_config(config)
