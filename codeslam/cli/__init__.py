@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 
 from codeslam.cli.app import app, console_error
 from codeslam.errors import CodeSLAMError
@@ -19,6 +20,8 @@ from codeslam.cli import synth as _synth  # noqa: E402,F401  isort: skip
 from codeslam.cli import train as _train  # noqa: E402,F401  isort: skip
 from codeslam.cli import depth as _depth  # noqa: E402,F401  isort: skip
 from codeslam.cli import sfm as _sfm  # noqa: E402,F401  isort: skip
+from codeslam.cli import slam as _slam  # noqa: E402,F401  isort: skip
+from codeslam.cli import demo as _demo  # noqa: E402,F401  isort: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,6 +32,18 @@ def main(argv: list[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     debug = "--debug" in args or os.environ.get("CODESLAM_DEBUG") == "1"
     args = [a for a in args if a != "--debug"]
+    with warnings.catch_warnings():  # restores the caller's warning display (main() also runs inside tests)
+        if not debug:
+            warnings.showwarning = _show_warning
+        return _run(args, debug)
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Python warnings (a skipped frame, invalid depth values) as one ``codeslam: warning:`` line each."""
+    print(f"codeslam: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
+def _run(args: list[str], debug: bool) -> int:
     try:
         # standalone mode: typer itself reports usage errors (exit 2) and handles --help (exit 0) by
         # raising SystemExit; exceptions raised inside a command propagate to us.

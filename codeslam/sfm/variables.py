@@ -144,5 +144,6 @@ class LinearPrior:
         """Add the prior's Hessian and gradient (``b + H d``, with ``d(d)/d(increment) ~ I``) in place."""
         idx = layout.indices(self.blocks).to(H.device)
         d = self.delta(state).to(H.dtype)
-        H[idx[:, None], idx[None, :]] += self.H.to(H.dtype)
-        g[idx] += (self.b + self.H @ d).to(g.dtype)
+        H_p = self.H.to(H.dtype)  # the prior may be kept in another precision than the normal equations
+        H[idx[:, None], idx[None, :]] += H_p
+        g[idx] += self.b.to(g.dtype) + H_p @ d

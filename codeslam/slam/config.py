@@ -1,0 +1,259 @@
+"""Configuration of the SLAM system (paper Sec. 4.2-4.3): one dataclass per subsystem, overlaid from YAML, and
+the resolved configuration written next to every result.
+
+YAML layout (every section and key optional; unknown keys are errors)::
+
+    device: cpu            # or cuda, cuda:1
+    dtype: float32
+    tracker:   {pyramid_levels: [3, 2, 1, 0], min_inlier_ratio: 0.6, ...}
+    keyframes: {min_baseline_ratio: 0.08, ...}
+    window:    {size: 4, ..., sfm: {sigma_photometric: 0.05, pyramid_levels: [2, 1, 0], ...}}
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from codeslam.errors import ConfigError
+from codeslam.sfm.config import SfMConfig
+
+MOTION_MODELS = ("constant_velocity", "static")
+DTYPES = ("float32", "float64")
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Photometric tracking of each frame against the last keyframe (paper Sec. 4.2): only the frame's pose (and
+    the affine brightness of the pair) is free, the keyframe's depth is fixed. The photometric residual and its
+    loss functions are those of ``window.sfm`` (sigma, Huber, border, slant and occlusion weights)."""
+
+    pyramid_levels: tuple[int, ...] = (3, 2, 1, 0)
+    """Levels visited coarse to fine (0 = finest): the coarse levels widen the basin of convergence (Sec. 4.2)."""
+    max_iterations: tuple[int, ...] = (8, 8, 6, 5)
+    """Levenberg-Marquardt iterations per visited level (same length as ``pyramid_levels``)."""
+    relative_cost_tolerance: float = 1e-3
+    """Stop a level when a step lowers the cost by less than this fraction: tracking needs a fraction of a pixel,
+    not the mapping's 1e-5 (measured on the generator's rooms: 1e-3 and 1e-5 end within 0.1 mm)."""
+    affine_brightness: bool = True
+    """Estimate a gain and bias between keyframe and frame (exposure changes, paper Sec. 5.2)."""
+    motion_model: str = "constant_velocity"
+    """Initial guess and failure fallback: 'constant_velocity' (repeat the last inter-frame motion) or 'static'."""
+    min_overlap: float = 0.3
+    """Tracking fails when fewer than this fraction of the keyframe's pixels land inside the frame."""
+    min_inlier_ratio: float = 0.6
+    """Tracking fails when fewer than this fraction of the overlapping pixels are photometric inliers."""
+    inlier_sigmas: float = 2.0
+    """A pixel is an inlier when its photometric residual is below this many ``sigma_photometric``."""
+    min_explained_variance: float = 0.5
+    """Tracking fails when the aligned frame explains less than this share of the keyframe's intensity variance
+    (measured on the generator's rooms: >= 0.98 when aligned, <= 0.38 for other rooms with enough overlap)."""
+    max_log_gain: float = 0.7
+    """Tracking fails when the brightness gain leaves exp(+-0.7) = [0.5, 2]: no camera's exposure changes that
+    much between frames; an unrelated image is often "explained" by a gain near 0."""
+
+    def __post_init__(self) -> None:
+        _check_levels("tracker", self.pyramid_levels, self.max_iterations)
+        if self.motion_model not in MOTION_MODELS:
+            raise ConfigError(f"tracker.motion_model must be one of {MOTION_MODELS}, got {self.motion_model!r}")
+        for name in ("min_overlap", "min_inlier_ratio"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"tracker.{name} must lie in [0, 1], got {getattr(self, name)}")
+        if not self.relative_cost_tolerance > 0:
+            raise ConfigError(f"tracker.relative_cost_tolerance must be positive, got {self.relative_cost_tolerance}")
+        if self.min_explained_variance > 1.0:
+            raise ConfigError(f"tracker.min_explained_variance must be <= 1, got {self.min_explained_variance}")
+        if not self.max_log_gain > 0:
+            raise ConfigError(f"tracker.max_log_gain must be positive, got {self.max_log_gain}")
+        if not self.inlier_sigmas > 0:
+            raise ConfigError(f"tracker.inlier_sigmas must be positive, got {self.inlier_sigmas}")
+
+
+@dataclass(frozen=True)
+class KeyframeConfig:
+    """When a tracked frame becomes a keyframe (paper Sec. 4.3, "once a certain baseline is achieved", PTAM-like).
+    Any one criterion suffices; none applies to frames whose tracking failed."""
+
+    min_baseline_ratio: float = 0.08
+    """Translation from the last keyframe over that keyframe's median scene depth: enough parallax for stereo."""
+    max_rotation_deg: float = 10.0
+    """Rotation from the last keyframe (degrees): the view content changes even without translation."""
+    min_overlap: float = 0.65
+    """Fraction of the last keyframe's pixels still visible in the frame below which the map needs a new view."""
+    min_frames_between: int = 2
+    """Frames that must pass after a keyframe before the next one: bounds the mapping load on fast motion."""
+
+    def __post_init__(self) -> None:
+        if not self.min_baseline_ratio > 0 or not self.max_rotation_deg > 0:
+            raise ConfigError("keyframes.min_baseline_ratio and keyframes.max_rotation_deg must be positive")
+        if not 0.0 <= self.min_overlap <= 1.0:
+            raise ConfigError(f"keyframes.min_overlap must lie in [0, 1], got {self.min_overlap}")
+        if self.min_frames_between < 1:
+            raise ConfigError(f"keyframes.min_frames_between must be >= 1, got {self.min_frames_between}")
+
+
+def _default_window_sfm() -> SfMConfig:
+    # Window solves start from tracked poses and the previous codes, so fewer, finer levels than the
+    # from-scratch SfM default suffice.
+    return SfMConfig(pyramid_levels=(2, 1, 0), max_iterations=(8, 6, 5))
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """The sliding window of keyframes optimised jointly (codes and poses, paper Sec. 4.1 and 4.3) and the
+    marginalisation of old keyframes into a linear prior."""
+
+    size: int = 4
+    """Keyframes optimised jointly; the paper's system uses 4 ("in a 4-keyframes setup")."""
+    min_pair_overlap: float = 0.3
+    """Keyframe pairs get residuals when this fraction of one's view lands in the other (consecutive keyframes
+    always do, so that the window stays connected)."""
+    marginalise: bool = True
+    """Turn the oldest keyframe's residuals into a linear prior (Schur complement) when it leaves the window;
+    False drops them (a plain sliding window, for comparison)."""
+    scale_prior_with_level: bool = True
+    """Scale the prior by the pixel ratio on coarser levels, whose data terms sum over 4x fewer pixels per level."""
+    sfm: SfMConfig = field(default_factory=_default_window_sfm)
+    """Residuals, loss functions and solver of the window (and the photometric settings of the tracker)."""
+
+    def __post_init__(self) -> None:
+        if self.size < 2:
+            raise ConfigError(f"window.size must be >= 2 (the initialisation needs two keyframes), got {self.size}")
+        if not 0.0 <= self.min_pair_overlap <= 1.0:
+            raise ConfigError(f"window.min_pair_overlap must lie in [0, 1], got {self.min_pair_overlap}")
+
+
+@dataclass(frozen=True)
+class SLAMConfig:
+    """The whole system."""
+
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    """Frame-to-keyframe photometric tracking."""
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    """Keyframe selection."""
+    window: WindowConfig = field(default_factory=WindowConfig)
+    """Sliding-window mapping and marginalisation."""
+    device: str = "cpu"
+    """Where the optimisation runs (cpu, cuda, cuda:N); tensors follow it, nothing is hard-coded."""
+    dtype: str = "float32"
+    """Floating-point type of images, decoders and solver (float64 for checks; the normal equations are solved
+    in float64 either way)."""
+
+    def __post_init__(self) -> None:
+        if self.dtype not in DTYPES:
+            raise ConfigError(f"dtype must be one of {DTYPES}, got {self.dtype!r}")
+        if not isinstance(self.device, str) or not self.device:
+            raise ConfigError(f"device must be a non-empty string such as 'cpu' or 'cuda', got {self.device!r}")
+
+    @property
+    def torch_dtype(self):
+        import torch
+
+        return {"float32": torch.float32, "float64": torch.float64}[self.dtype]
+
+    @property
+    def decoder_levels(self) -> int:
+        """Pyramid levels every keyframe's depth model must provide."""
+        return 1 + max(max(self.tracker.pyramid_levels), max(self.window.sfm.pyramid_levels))
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain (YAML-ready) mapping: tuples become lists."""
+        return _plain(asdict(self))
+
+    def to_yaml(self) -> str:
+        return yaml.safe_dump(self.to_dict(), sort_keys=False)
+
+
+def _check_levels(section: str, levels: tuple[int, ...], iterations: tuple[int, ...]) -> None:
+    if not levels or len(levels) != len(iterations):
+        raise ConfigError(f"{section}: pyramid_levels and max_iterations must be non-empty and of equal length")
+    if any(lv < 0 for lv in levels) or any(it < 0 for it in iterations):
+        raise ConfigError(f"{section}: pyramid levels and iteration counts must be >= 0")
+
+
+def _plain(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    return obj
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    """A YAML value converted to the type of the field's default, or ConfigError."""
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise ConfigError(f"{name} must be true or false, got {value!r}")
+        return value
+    if isinstance(default, int):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{name} must be an integer, got {value!r}")
+        return value
+    if isinstance(default, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{name} must be a number, got {value!r}")
+        return float(value)
+    if isinstance(default, str):
+        if not isinstance(value, str):
+            raise ConfigError(f"{name} must be a string, got {value!r}")
+        return value
+    if isinstance(default, tuple):
+        if not isinstance(value, (list, tuple)) or any(isinstance(v, bool) or not isinstance(v, int) for v in value):
+            raise ConfigError(f"{name} must be a list of integers, got {value!r}")
+        return tuple(value)
+    raise AssertionError(f"unhandled config field type for {name}")  # a bug in this module
+
+
+def _overlay(base: Any, updates: Any, section: str) -> Any:
+    """``base`` (one of the config dataclasses) with the keys of ``updates`` replaced, recursively."""
+    if isinstance(base, SfMConfig):
+        if not isinstance(updates, dict):
+            raise ConfigError(f"config section '{section}' must be a mapping, got {type(updates).__name__}")
+        return SfMConfig.from_dict({**base.to_dict(), **updates})
+    if not isinstance(updates, dict):
+        raise ConfigError(f"config section '{section}' must be a mapping, got {type(updates).__name__}")
+    known = {f.name for f in fields(base)}
+    unknown = sorted(str(k) for k in set(updates) - known)
+    if unknown:
+        where = f"{section} " if section else ""
+        raise ConfigError(f"unknown {where}option(s): {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+    changes = {}
+    for k, v in updates.items():
+        name = f"{section}.{k}" if section else k
+        current = getattr(base, k)
+        if hasattr(current, "__dataclass_fields__"):
+            changes[k] = _overlay(current, v if v is not None else {}, name)
+        else:
+            changes[k] = _coerce(name, v, current)
+    try:
+        return replace(base, **changes)
+    except TypeError as e:
+        raise ConfigError(f"config section '{section or 'top level'}': {e}") from None
+
+
+def overlay_config(base: SLAMConfig, updates: dict[str, Any]) -> SLAMConfig:
+    """``base`` with a (YAML-shaped) mapping of updates applied; validates every touched field."""
+    return _overlay(base, updates, "")
+
+
+def load_config(path: str | os.PathLike | None = None, base: SLAMConfig | None = None) -> SLAMConfig:
+    """Read a YAML file (safe loader) and overlay it on ``base`` (the defaults when None)."""
+    base = base or SLAMConfig()
+    if path is None:
+        return base
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ConfigError(f"config file not found: {path}") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
+        raise ConfigError(f"cannot read config file {path}: {' '.join(str(e).split())}") from None
+    if data is None:
+        return base
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {path} must hold a mapping (sections tracker, keyframes, window)")
+    return overlay_config(base, data)

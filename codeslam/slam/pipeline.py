@@ -1,0 +1,317 @@
+"""The SLAM runner (the tools layer around :class:`~codeslam.slam.system.CodeSLAM`): it owns the dataset loop,
+the resampling of every frame to the depth model's camera (the paper's intrinsics correction, Sec. 5.3), timing,
+evaluation against ground truth and the output files. The algorithm itself never opens a file.
+
+Outputs of :func:`write_outputs` (all written atomically):
+
+* ``trajectory.txt``: every processed frame's final pose, TUM format (camera-to-world);
+* ``keyframes.txt``: the keyframes' final poses, TUM format; ``keyframes.npz``: their ids, frame indices,
+  timestamps, poses, codes, final depth maps, images and camera (for reconstruction);
+* ``map.ply``: the keyframes' depths fused into one coloured point cloud (bilateral-filtered, slanted elements
+  dropped, as the paper's Fig. 8; :func:`codeslam.recon.fuse`);
+* ``result.json``: counts, timings, frames per second and, with ground truth, the metrics;
+* ``config.yaml``: the resolved configuration; ``trajectory.png``: the aligned trajectory (with ground truth).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from codeslam.data.base import Sequence
+from codeslam.data.frame import Frame
+from codeslam.errors import CodeSLAMError, ConfigError
+from codeslam.eval.trajectory import Trajectory, write_tum
+from codeslam.geometry.camera import PinholeCamera
+from codeslam.geometry.resample import resample_depth, resample_image
+from codeslam.io import atomic_path, atomic_write, write_json
+from codeslam.slam.config import SLAMConfig
+from codeslam.slam.system import CodeSLAM, DepthModelFactory, FrameResult
+from codeslam.slam.window import MapKeyframe
+from codeslam.viz import Visualizer
+
+#: The system's stages, in the order :attr:`FrameResult.timings_ms` reports them, plus the runner's own.
+STAGES = ("read", "resample", "track", "decode", "marginalise", "window")
+
+
+def parse_frame_range(spec: str | None, num_frames: int) -> range:
+    """``START:END[:STEP]`` (END exclusive, either bound may be empty, as a Python slice without negatives) ->
+    the frame indices; None means every frame. ConfigError when malformed, outside the sequence or selecting
+    fewer than the two frames SLAM needs."""
+    if num_frames < 2:
+        raise ConfigError(f"SLAM needs at least 2 frames; the sequence has {num_frames}")
+    if spec is None:
+        return range(num_frames)
+    parts = spec.split(":")
+    if len(parts) not in (2, 3):
+        raise ConfigError(f"--frames must look like START:END or START:END:STEP, got {spec!r}")
+    try:
+        vals = [int(p) if p.strip() else None for p in parts]
+    except ValueError:
+        raise ConfigError(f"--frames must hold integers, got {spec!r}") from None
+    start, end = vals[0] or 0, num_frames if vals[1] is None else vals[1]
+    step = 1 if len(vals) < 3 or vals[2] is None else vals[2]
+    if start < 0 or end < 0 or step < 1:
+        raise ConfigError(f"--frames {spec!r}: bounds must be >= 0 and the step >= 1")
+    if start >= num_frames or end > num_frames:
+        raise ConfigError(f"--frames {spec!r} lies outside the sequence's {num_frames} frames (0:{num_frames})")
+    frames = range(start, end, step)
+    if len(frames) < 2:
+        raise ConfigError(f"--frames {spec!r} selects {len(frames)} frame(s); SLAM needs at least 2")
+    return frames
+
+
+def to_camera(frame: Frame, camera: PinholeCamera) -> Frame:
+    """The frame resampled to ``camera`` (same optical centre and axes: the pose and z-depths carry over)."""
+    if frame.camera == camera:
+        return frame
+    image = resample_image(frame.image[None], frame.camera, camera)[0]
+    depth = None if frame.depth is None else resample_depth(frame.depth[None, None], frame.camera, camera)[0, 0]
+    return Frame(frame.timestamp, image, camera, depth, frame.pose, frame.index)
+
+
+@dataclass
+class SLAMRun:
+    """The outcome of :func:`run_slam`.
+
+    Attributes:
+        results: one :class:`FrameResult` per processed frame.
+        trajectory: the final poses of the processed frames; keyframe_trajectory: the keyframes'.
+        keyframes: every keyframe (marginalised ones with their final depth).
+        camera: the camera the system ran in.
+        timings_ms: total wall time per stage (:data:`STAGES`) over the run.
+        process_s: wall time inside the system; wall_s: of the whole loop (reading and resampling included).
+    """
+
+    results: list[FrameResult]
+    trajectory: Trajectory
+    keyframe_trajectory: Trajectory
+    keyframes: list[MapKeyframe]
+    camera: PinholeCamera
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    process_s: float = 0.0
+    wall_s: float = 0.0
+
+    @property
+    def fps(self) -> float:
+        """Frames per second of the system (reading and resampling excluded)."""
+        return len(self.results) / self.process_s if self.process_s > 0 else math.inf
+
+
+def run_slam(
+    sequence: Sequence,
+    system: CodeSLAM,
+    camera: PinholeCamera,
+    frames: range | None = None,
+    visualizer: Visualizer | None = None,
+    progress: Callable[[int, int, FrameResult], None] | None = None,
+) -> SLAMRun:
+    """Run ``system`` over ``frames`` of ``sequence`` (all when None), each frame resampled to ``camera``.
+    ``progress(done, total, result)`` is called after every frame."""
+    frames = parse_frame_range(None, len(sequence)) if frames is None else frames
+    visualizer = visualizer or Visualizer()
+    totals = dict.fromkeys(STAGES, 0.0)
+    results = []
+    process_s = 0.0
+    t_start = time.perf_counter()
+    for n, i in enumerate(frames):
+        t0 = time.perf_counter()
+        raw = sequence[i]
+        t1 = time.perf_counter()
+        frame = to_camera(raw, camera)
+        t2 = time.perf_counter()
+        result = system.process(frame)
+        t3 = time.perf_counter()
+        process_s += t3 - t2
+        totals["read"] += 1e3 * (t1 - t0)
+        totals["resample"] += 1e3 * (t2 - t1)
+        for k, v in result.timings_ms.items():
+            totals[k] = totals.get(k, 0.0) + v
+        results.append(result)
+        visualizer.update(frame, result, system)
+        if progress is not None:
+            progress(n + 1, len(frames), result)
+    visualizer.close()
+    return SLAMRun(
+        results=results, trajectory=system.trajectory(), keyframe_trajectory=system.keyframe_trajectory(),
+        keyframes=list(system.keyframes), camera=camera, timings_ms=totals, process_s=process_s,
+        wall_s=time.perf_counter() - t_start,
+    )
+
+
+# ---- evaluation -----------------------------------------------------------------------------------------------
+def ground_truth(sequence: Sequence, frames: range) -> Trajectory | None:
+    """The ground-truth poses of the processed frames that have one, or None without ground truth."""
+    gt = sequence.gt_poses
+    if gt is None:
+        return None
+    idx = [i for i in frames if bool(torch.isfinite(gt[i]).all())]
+    if not idx:
+        return None
+    return Trajectory(sequence.timestamps[idx], gt[idx])
+
+
+def _rotation_drift_deg(est: Trajectory, ref: Trajectory, ate) -> np.ndarray:
+    """Orientation error (degrees) of every matched pose relative to the first, ``angle((R_ref0^T R_ref)^T
+    (R_est0^T R_est))``: independent of any alignment (a position-only alignment leaves the roll about a nearly
+    straight path undetermined)."""
+    from codeslam.eval.metrics import rotation_angle
+
+    R_est = est.poses.numpy()[ate.est_idx, :3, :3]  # (K, 3, 3)
+    R_ref = ref.poses.numpy()[ate.ref_idx, :3, :3]
+    rel_est = np.swapaxes(R_est[:1], -1, -2) @ R_est  # R_est0^T R_est
+    rel_ref = np.swapaxes(R_ref[:1], -1, -2) @ R_ref
+    return np.degrees(rotation_angle(np.swapaxes(rel_ref, -1, -2) @ rel_est))
+
+
+def evaluate_run(est: Trajectory, gt: Trajectory) -> dict:
+    """Metrics of the estimate against ground truth: ATE (SE(3) and Sim(3) alignment), RPE, the orientation
+    error relative to the first frame (``rot_err_rmse_deg``, ``rot_err_max_deg``), and two no-motion
+    baselines: a constant pose at the first ground-truth pose
+    (``no_motion_ate_rmse``, unaligned) and the best any constant pose can do under alignment
+    (``no_motion_ate_rmse_aligned``, the RMS distance of the positions to their mean)."""
+    from codeslam.eval import metrics
+
+    out: dict = {}
+    se3 = metrics.evaluate(est, gt, align="se3")
+    s = se3.summary()
+    out.update(ate_se3_rmse=s["ate_rmse"], ate_se3_mean=s["ate_mean"], ate_se3_max=s["ate_max"],
+               rpe_trans_rmse=s["rpe_trans_rmse"], rpe_rot_rmse_deg=s["rpe_rot_rmse_deg"],
+               n_matched=s["n_matched"], path_length_gt=s["path_length_gt"], drift_end_error=s["drift_end_error"])
+    rot = _rotation_drift_deg(est, gt, se3.ate)
+    out.update(rot_err_rmse_deg=float(np.sqrt(np.mean(rot**2))), rot_err_max_deg=float(rot.max()))
+    sim3 = metrics.ate(est, gt, align="sim3")
+    out.update(ate_sim3_rmse=float(sim3.rmse), sim3_scale=float(sim3.alignment.s))
+    xyz = gt.positions_xyz.numpy()
+    out["no_motion_ate_rmse"] = float(np.sqrt(np.mean(np.sum((xyz - xyz[0]) ** 2, axis=1))))
+    out["no_motion_ate_rmse_aligned"] = float(np.sqrt(np.mean(np.sum((xyz - xyz.mean(0)) ** 2, axis=1))))
+    return out
+
+
+def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
+    """The JSON-ready summary of a run (``extra`` keys are added as they are)."""
+    res = run.results
+    n = len(res)
+    out = {
+        "frames": n,
+        "first_frame": res[0].index,
+        "last_frame": res[-1].index,
+        "keyframes": len(run.keyframes),
+        "keyframe_frames": [k.frame_index for k in run.keyframes],
+        "tracking_failures": sum(not r.tracking_ok for r in res),
+        "failed_frames": [r.index for r in res if not r.tracking_ok],
+        "marginalised": sum(r.marginalised_id is not None for r in res),
+        "width": run.camera.width,
+        "height": run.camera.height,
+        "code_size": int(run.keyframes[0].code.shape[0]),
+        "fps": run.fps,
+        "fps_with_io": n / run.wall_s if run.wall_s > 0 else math.inf,
+        "process_s": run.process_s,
+        "wall_s": run.wall_s,
+        "ms_per_frame": {k: v / n for k, v in run.timings_ms.items()},
+        "ms_per_keyframe": {k: run.timings_ms.get(k, 0.0) / max(len(run.keyframes) - 1, 1)
+                            for k in ("decode", "marginalise", "window")},
+    }
+    if evaluation is not None:
+        out.update(evaluation)
+    out.update(extra)
+    return out
+
+
+# ---- outputs --------------------------------------------------------------------------------------------------
+def _rgb(kf: MapKeyframe) -> np.ndarray:
+    """(3, H, W) float32 colour image of a keyframe (grey repeated when it has no colour)."""
+    img = kf.keyframe.image.detach().cpu().float()
+    img = img if img.dim() == 3 else img[None]
+    return img.expand(3, -1, -1).numpy() if img.shape[0] == 1 else img.numpy()
+
+
+def fuse_keyframes(keyframes: list[MapKeyframe], camera: PinholeCamera):
+    """The keyframes' final depths fused into one coloured point cloud (:func:`codeslam.recon.fuse`)."""
+    from codeslam.recon import FusionView, fuse
+
+    return fuse([FusionView(torch.from_numpy(_rgb(k)), k.depth_map().detach().cpu().float(), camera, k.T_wc)
+                 for k in keyframes])
+
+
+def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: PinholeCamera) -> None:
+    """The keyframes for reconstruction as a compressed .npz (arrays only, no pickled objects)."""
+    depths = np.stack([k.depth_map().detach().cpu().float().numpy() for k in keyframes])  # (K, H, W)
+    arrays = {
+        "id": np.array([k.id for k in keyframes], dtype=np.int64),
+        "frame_index": np.array([k.frame_index for k in keyframes], dtype=np.int64),
+        "timestamp": np.array([k.timestamp for k in keyframes], dtype=np.float64),
+        "T_wc": np.stack([k.T_wc.numpy() for k in keyframes]),  # (K, 4, 4)
+        "code": np.stack([k.code.detach().cpu().double().numpy() for k in keyframes]),  # (K, C)
+        "depth": depths,
+        "image": np.stack([_rgb(k) for k in keyframes]),  # (K, 3, H, W) in [0, 1]
+        "camera": np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height]),
+    }
+    with atomic_path(path) as tmp:
+        np.savez_compressed(tmp, **arrays)
+
+
+def write_outputs(
+    out_dir: str | Path, run: SLAMRun, config: SLAMConfig, summary: dict, gt: Trajectory | None = None,
+) -> dict[str, str]:
+    """Write the run's files into ``out_dir`` (see the module docstring); returns name -> path. result.json is
+    written last, so a run interrupted while writing leaves no summary pointing at missing files."""
+    out = Path(out_dir)
+    paths = {name: out / name for name in ("trajectory.txt", "keyframes.txt", "keyframes.npz", "config.yaml")}
+    write_tum(paths["trajectory.txt"], run.trajectory)
+    write_tum(paths["keyframes.txt"], run.keyframe_trajectory)
+    write_keyframes(paths["keyframes.npz"], run.keyframes, run.camera)
+    with atomic_write(paths["config.yaml"]) as f:
+        f.write(config.to_yaml())
+    from codeslam.recon.ply import write_ply
+
+    paths["map.ply"] = out / "map.ply"
+    write_ply(paths["map.ply"], fuse_keyframes(run.keyframes, run.camera),
+              comments=[f"codeslam slam: {len(run.keyframes)} keyframes fused"])
+    if gt is not None and "ate_se3_rmse" in summary:
+        from codeslam.eval import metrics
+        from codeslam.eval.plots import plot_trajectories
+
+        ate = metrics.ate(run.trajectory, gt, align="se3")
+        paths["trajectory.png"] = out / "trajectory.png"
+        plot_trajectories(paths["trajectory.png"], ate.est_xyz, gt.positions_xyz.numpy(),
+                          title=f"CodeSLAM: ATE RMSE {ate.rmse:.4f} m (SE(3) alignment), {len(run.keyframes)} "
+                                f"keyframes", est_label="estimate", ref_label="ground truth")
+    paths["result.json"] = out / "result.json"
+    files = {k: str(v) for k, v in paths.items()}
+    write_json(paths["result.json"], {**summary, "outputs": files})
+    return files
+
+
+def run_and_write(
+    sequence: Sequence,
+    config: SLAMConfig,
+    depth_factory: DepthModelFactory,
+    camera: PinholeCamera,
+    frames: range,
+    out_dir: str | Path | None = None,
+    visualizer: Visualizer | None = None,
+    progress: Callable[[int, int, FrameResult], None] | None = None,
+    **extra,
+) -> tuple[SLAMRun, dict]:
+    """Build the system, run it, evaluate against the sequence's ground truth (if any) and write the outputs
+    (if ``out_dir``). Returns the run and its summary (``extra`` keys are added to the summary)."""
+    system = CodeSLAM(config, depth_factory)
+    run = run_slam(sequence, system, camera, frames, visualizer, progress)
+    gt = ground_truth(sequence, frames)
+    evaluation = None
+    if gt is not None:
+        try:
+            evaluation = evaluate_run(run.trajectory, gt)
+        except CodeSLAMError as e:  # e.g. a ground truth too short or degenerate to align
+            extra["evaluation_error"] = str(e)
+    summary = summarise(run, evaluation, **extra)
+    if out_dir is not None:
+        summary["outputs"] = write_outputs(out_dir, run, config, summary, gt if evaluation else None)
+    return run, summary

@@ -1,0 +1,154 @@
+"""Tracking (paper Sec. 4.2): the current frame is paired with the last keyframe and its pose relative to that
+keyframe is the minimiser of the photometric error, coarse to fine over the image pyramid. The keyframe's depth
+(decoded at its current code) is held fixed and there is no geometric term: the frame has no depth of its own.
+
+The problem is a two-frame instance of the SfM back-end (:class:`~codeslam.sfm.PairProblem` with the keyframe
+as frame 0 at the identity and the frame as frame 1 without a decoder), so residuals, loss functions and the
+damped Gauss-Newton solver are exactly those of the mapping; only the frame's pose and the pair's affine
+brightness are free. The result is checked before it is trusted: a non-finite cost or pose, too little overlap
+or too few photometric inliers mark the tracking as failed, and the caller falls back to its motion model.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import torch
+
+from codeslam.geometry.camera import PinholeCamera
+from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
+from codeslam.sfm.keyframes import Keyframe, build_levels
+from codeslam.sfm.solver import PairProblem, levenberg_marquardt
+from codeslam.sfm.variables import AFFINE_DIM, CODE, POSE, BlockId, SfMState, VariableLayout
+from codeslam.slam.config import TrackerConfig
+from codeslam.slam.poses import project_to_se3
+
+
+@dataclass
+class TrackResult:
+    """Outcome of tracking one frame against a keyframe.
+
+    Attributes:
+        T_kf: (4, 4) float64 pose of the frame in the keyframe's camera frame (``T_kf`` maps the frame's points
+            into the keyframe; with the keyframe's ``T_wk`` the frame's pose is ``T_wk @ T_kf``).
+        affine: (2,) log-gain and bias of ``I_keyframe ~ exp(a) I_frame + b``.
+        ok: whether the estimate passed the checks; when False, ``T_kf`` is the optimiser's output for
+            diagnosis only and must not be used as the frame's pose.
+        reason: why tracking failed ('' when ok).
+        overlap: fraction of the keyframe's pixels (finest tracked level) that land inside the frame.
+        inlier_ratio: fraction of those whose photometric residual is below ``inlier_sigmas`` sigmas.
+        explained: ``1 - mean(r^2) / var(I_keyframe)`` over those pixels, the share of the keyframe's intensity
+            variance the warped frame explains (near 1 when aligned; an unrelated image can keep many residuals
+            small by fitting a near-zero gain, but explains little of the variance).
+        cost: final robust cost at the finest level; iterations: LM iterations over all levels.
+    """
+
+    T_kf: torch.Tensor
+    affine: torch.Tensor
+    ok: bool
+    reason: str
+    overlap: float
+    inlier_ratio: float
+    explained: float
+    cost: float
+    iterations: int
+
+
+def fixed_depth_decoder(decoder: LinearDecoder, code: torch.Tensor) -> LinearDecoder:
+    """The decoder's proximity at ``code`` on every level as a decoder of code size 1 with a zero Jacobian:
+    tracking holds the keyframe's depth fixed, so this keeps the per-iteration decoding (``prox0 + J c``, a
+    (C, H, W) contraction) out of the solver's loop."""
+    code = code.to(dtype=decoder.levels[0].jac.dtype, device=decoder.levels[0].jac.device)
+    levels = tuple(
+        DecoderLevel(decoder.prox(code, k), torch.zeros((1, *lvl.prox0.shape), dtype=lvl.jac.dtype,
+                                                          device=lvl.jac.device), lvl.uncertainty)
+        for k, lvl in enumerate(decoder.levels)
+    )
+    return LinearDecoder(levels, decoder.avg_depth)
+
+
+class PhotometricTracker:
+    """Coarse-to-fine photometric alignment of a frame to a keyframe (paper Sec. 4.2).
+
+    cfg: levels, iterations and failure thresholds; residuals: the photometric residual's settings (sigma, Huber,
+    border, slant and occlusion weights), normally the window's SfM config (its geometric term is switched off).
+    """
+
+    def __init__(self, cfg: TrackerConfig, residuals: SfMConfig) -> None:
+        self.cfg = cfg
+        self.sfm_cfg = replace(
+            residuals, photometric=True, geometric=False, affine_brightness=cfg.affine_brightness,
+            pyramid_levels=cfg.pyramid_levels, max_iterations=cfg.max_iterations,
+            relative_cost_tolerance=cfg.relative_cost_tolerance,
+        )
+
+    def track(
+        self,
+        keyframe: Keyframe,
+        code: torch.Tensor,
+        image: torch.Tensor,
+        camera: PinholeCamera,
+        T_kf_init: torch.Tensor,
+        affine_init: torch.Tensor | None = None,
+    ) -> TrackResult:
+        """Align ``image`` ((1, H, W) grey or (3, H, W) RGB, seen by ``camera``) to ``keyframe`` (with decoder)
+        whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,)."""
+        cfg, sfm_cfg = self.cfg, self.sfm_cfg
+        ref = keyframe.decoder.levels[0].jac
+        dtype, device = ref.dtype, ref.device
+        fixed_depth = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, code))
+        frame = Keyframe(image.to(dtype=dtype, device=device), camera, None)  # no depth: B of the pair only
+        levels = build_levels([fixed_depth, frame], cfg.pyramid_levels, dtype, device)
+        eye = torch.eye(4, dtype=dtype, device=device)
+        affine = torch.zeros(1, AFFINE_DIM, dtype=dtype, device=device)
+        if affine_init is not None:
+            affine[0] = affine_init.to(dtype=dtype, device=device)
+        state = SfMState(
+            poses=torch.stack([eye, T_kf_init.to(dtype=dtype, device=device)]),  # keyframe at the origin
+            codes=torch.zeros(2, 1, dtype=dtype, device=device),  # the code is baked into the fixed depth
+            affine=affine,
+        )
+        # Only the frame's pose and the pair's brightness are free: keyframe pose and depth are fixed (Sec. 4.2).
+        fixed = [BlockId(POSE, 0), BlockId(CODE, 0), BlockId(CODE, 1)]
+        layout = VariableLayout.for_sfm(2, 1, 1, cfg.affine_brightness, fixed)
+        pairs = torch.tensor([[0, 1]], device=device)  # A = keyframe (decoded depth), B = frame
+        iterations = 0
+        for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):  # coarse to fine (Sec. 4.2)
+            problem = PairProblem(levels[lvl], pairs, sfm_cfg)
+            state, report = levenberg_marquardt(problem, state, layout, sfm_cfg, iters)
+            iterations += report.iterations
+        finest = levels[cfg.pyramid_levels[-1]]
+        cost, ev = PairProblem(finest, pairs, sfm_cfg).evaluate(state)
+        return self._checked(state, ev, finest.gray[0, 0].reshape(-1), cost, iterations)
+
+    def _checked(self, state: SfMState, ev, gray_A: torch.Tensor, cost: float, iterations: int) -> TrackResult:
+        """The track result with the failure checks applied (non-finite, overlap, inlier ratio, explained
+        variance). ``gray_A`` (N,): the keyframe's intensities at the finest tracked level."""
+        cfg = self.cfg
+        valid = ev.valid[0, 0]  # (N,) photometric residuals of the one pair
+        r = ev.r[0, 0]
+        n_valid = int(valid.sum())
+        overlap = n_valid / valid.numel()
+        inliers = valid & (r.abs() <= cfg.inlier_sigmas * ev.sigma[0, 0])
+        inlier_ratio = int(inliers.sum()) / max(n_valid, 1)
+        explained = 0.0
+        if n_valid > 1:
+            var_A = float(gray_A[valid].var())
+            explained = 1.0 - float(r[valid].square().mean()) / max(var_A, torch.finfo(r.dtype).tiny)
+        T_kf = project_to_se3(state.poses[1])
+        affine = state.affine[0].to(device="cpu", dtype=torch.float64)
+        reason = ""
+        if not (math.isfinite(cost) and bool(torch.isfinite(T_kf).all()) and bool(torch.isfinite(affine).all())):
+            reason = "non-finite cost or pose"
+        elif overlap < cfg.min_overlap:
+            reason = f"overlap {overlap:.2f} below {cfg.min_overlap:.2f}"
+        elif inlier_ratio < cfg.min_inlier_ratio:
+            reason = f"inlier ratio {inlier_ratio:.2f} below {cfg.min_inlier_ratio:.2f}"
+        elif explained < cfg.min_explained_variance:
+            reason = f"explained intensity variance {explained:.2f} below {cfg.min_explained_variance:.2f}"
+        elif abs(float(affine[0])) > cfg.max_log_gain:
+            reason = f"brightness gain {math.exp(float(affine[0])):.2f} outside exp(+-{cfg.max_log_gain:g})"
+        return TrackResult(T_kf=T_kf, affine=affine, ok=not reason, reason=reason, overlap=overlap,
+                           inlier_ratio=inlier_ratio, explained=explained, cost=cost, iterations=iterations)

@@ -1,0 +1,321 @@
+"""The sliding window of keyframes (paper Sec. 4.3): the codes and poses of the last K keyframes are optimised
+jointly on the photometric and geometric residuals of every overlapping keyframe pair (the N-frame SfM of
+Sec. 4.1), and a keyframe leaving the window is marginalised into a linear prior on the ones that stay.
+
+Marginalisation. Let ``x_m`` be the leaving keyframe's variables (its code, its pose unless it is the fixed
+gauge, and the affine brightness of its pairs) and ``x_r`` the remaining keyframes' poses and codes. Only the
+cost terms that involve ``x_m`` are marginalised: the residuals of the pairs that contain the leaving keyframe,
+its code prior and the previous linear prior. Their Gauss-Newton normal equations at the current linearisation
+point ``x0``, ``[[H_mm, H_mr], [H_rm, H_rr]]`` and ``[g_m; g_r]``, are reduced by the Schur complement::
+
+    H' = H_rr - H_rm H_mm^-1 H_mr,        b' = g_r - H_rm H_mm^-1 g_m
+
+which gives the prior ``0.5 d^T H' d + b'^T d`` with ``d = x_r ominus x0_r`` (a
+:class:`~codeslam.sfm.variables.LinearPrior`, entering later windows through the solver's ``priors``). For a
+linear-Gaussian problem this is the exact marginal: minimising the prior plus the terms that do not involve
+``x_m`` gives the same ``x_r`` as the full problem. Pairs among the remaining keyframes stay in the window as
+residuals and are not part of the prior (they would be counted twice otherwise).
+
+Gauge. While no prior exists, the oldest keyframe's pose is fixed (the first keyframe of the map is the world
+origin). Its marginal prior then anchors the remaining poses, so later windows fix no pose. Monocular scale is
+held by the code prior, as in two-frame SfM.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import torch
+
+from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.keyframes import Keyframe, build_levels
+from codeslam.sfm.normal_equations import assemble
+from codeslam.sfm.pairs import view_overlap
+from codeslam.sfm.residuals import evaluate_pairs, pair_jacobians
+from codeslam.sfm.solver import LMReport, PairProblem, levenberg_marquardt
+from codeslam.sfm.variables import (
+    AFFINE,
+    AFFINE_DIM,
+    CODE,
+    POSE,
+    POSE_DIM,
+    BlockId,
+    LinearPrior,
+    SfMState,
+    VariableLayout,
+)
+from codeslam.slam.config import WindowConfig
+from codeslam.slam.poses import project_to_se3
+
+
+@dataclass
+class MapKeyframe:
+    """A keyframe of the map.
+
+    Attributes:
+        id: running keyframe number (0 = the map's origin).
+        frame_index, timestamp: the frame it was made from.
+        keyframe: image (RGB or grey), camera and linear depth decoder (the decoder is dropped once the keyframe
+            is marginalised; its final depth is kept in ``depth``).
+        T_wc: (4, 4) float64 CPU pose, updated by every window optimisation until marginalised.
+        code: (C,) depth code (solver dtype and device), likewise.
+        depth: (H, W) final depth once marginalised, else None (use :meth:`depth_map`).
+    """
+
+    id: int
+    frame_index: int
+    timestamp: float
+    keyframe: Keyframe
+    T_wc: torch.Tensor
+    code: torch.Tensor
+    depth: torch.Tensor | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.keyframe.decoder is not None
+
+    def depth_map(self, level: int = 0) -> torch.Tensor:
+        """(H_l, W_l) depth in metres at the current code."""
+        if self.keyframe.decoder is None:
+            if level != 0:
+                raise ValueError("a marginalised keyframe keeps its finest depth only")
+            return self.depth
+        return self.keyframe.decoder.depth(self.code, level)
+
+    def median_depth(self) -> float:
+        """Median of the decoded depth (metres): the scene scale that keyframe selection compares against."""
+        d = self.depth_map()
+        return float(d[d > 0].median())
+
+    def freeze(self) -> None:
+        """Keep the final depth, drop the decoder (its Jacobian is the bulk of a keyframe's memory)."""
+        self.depth = self.depth_map().detach()
+        self.keyframe = Keyframe(self.keyframe.image, self.keyframe.camera, None)
+
+
+@dataclass
+class WindowReport:
+    """What one window optimisation did. pairs: (A, B) keyframe ids with residuals; levels: (level, LM report)
+    coarse to fine; ms: wall time."""
+
+    pairs: list[tuple[int, int]] = field(default_factory=list)
+    levels: list[tuple[int, LMReport]] = field(default_factory=list)
+    ms: float = 0.0
+
+    @property
+    def iterations(self) -> int:
+        return sum(r.iterations for _, r in self.levels)
+
+
+def schur_complement(
+    H: torch.Tensor, g: torch.Tensor, marg: torch.Tensor, keep: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Marginalise the variables ``marg`` out of the quadratic ``0.5 d^T H d + g^T d``.
+
+    H (D, D) symmetric, g (D,), marg / keep: long index tensors partitioning (a subset of) range(D)
+    -> H' (k, k) = ``H_rr - H_rm H_mm^-1 H_mr``, b' (k,) = ``g_r - H_rm H_mm^-1 g_m`` over ``keep``, in float64.
+    ``H_mm`` is inverted by Cholesky; if it is singular (a direction no term constrains) the pseudo-inverse
+    is used, which marginalises only the constrained directions.
+    """
+    H64, g64 = H.to(torch.float64), g.to(torch.float64)
+    H_mm = H64[marg[:, None], marg[None, :]]
+    H_mr = H64[marg[:, None], keep[None, :]]
+    H_rr = H64[keep[:, None], keep[None, :]]
+    g_m, g_r = g64[marg], g64[keep]
+    L, info = torch.linalg.cholesky_ex(H_mm)
+    if int(info) == 0:
+        X = torch.cholesky_solve(torch.cat([H_mr, g_m[:, None]], dim=1), L)  # H_mm^-1 [H_mr, g_m]
+    else:
+        X = torch.linalg.pinv(H_mm, hermitian=True) @ torch.cat([H_mr, g_m[:, None]], dim=1)
+    H_new = H_rr - H_mr.T @ X[:, :-1]
+    g_new = g_r - H_mr.T @ X[:, -1]
+    return 0.5 * (H_new + H_new.T), g_new
+
+
+class SlidingWindow:
+    """The active keyframes (oldest first), their linear prior and the pairwise affine brightness estimates.
+
+    The prior's blocks are stored by keyframe id (``BlockId(kind, keyframe id)``) and mapped to window
+    positions for each solve.
+    """
+
+    def __init__(self, cfg: WindowConfig) -> None:
+        self.cfg = cfg
+        self.keyframes: list[MapKeyframe] = []
+        self.prior: LinearPrior | None = None
+        self.prior_level: int = min(cfg.sfm.pyramid_levels)  # the level the prior's Hessian was built at
+        self._affine: dict[tuple[int, int], torch.Tensor] = {}  # (id A, id B) -> (2,) last estimate
+        self._pairs: list[tuple[int, int]] = []  # id pairs of the last optimisation (its linearisation point)
+
+    def __len__(self) -> int:
+        return len(self.keyframes)
+
+    @property
+    def is_full(self) -> bool:
+        return len(self.keyframes) >= self.cfg.size
+
+    def add(self, kf: MapKeyframe) -> None:
+        self.keyframes.append(kf)
+
+    # ---- problem set-up -------------------------------------------------------------------------------------
+    def _tensors(self) -> tuple[torch.dtype, torch.device]:
+        ref = self.keyframes[-1].keyframe.decoder.levels[0].jac
+        return ref.dtype, ref.device
+
+    def _state(self, id_pairs: list[tuple[int, int]]) -> SfMState:
+        dtype, device = self._tensors()
+        zero = torch.zeros(AFFINE_DIM, dtype=dtype, device=device)
+        affine = [self._affine.get(p, zero).to(dtype=dtype, device=device) for p in id_pairs]
+        return SfMState(
+            poses=torch.stack([k.T_wc for k in self.keyframes]).to(dtype=dtype, device=device),
+            codes=torch.stack([k.code for k in self.keyframes]).to(dtype=dtype, device=device),
+            affine=torch.stack(affine) if affine else torch.zeros(0, AFFINE_DIM, dtype=dtype, device=device),
+        )
+
+    def select_pairs(self) -> list[tuple[int, int]]:
+        """(A, B) keyframe ids whose views overlap by at least ``min_pair_overlap`` (at the window's median
+        depth), plus every consecutive pair, in both directions."""
+        kfs = self.keyframes
+        poses = torch.stack([k.T_wc for k in kfs])  # (F, 4, 4) float64
+        depth = float(torch.tensor([k.median_depth() for k in kfs]).median())
+        ov = view_overlap(poses, kfs[0].keyframe.camera, depth)  # (F, F)
+        out = []
+        for a in range(len(kfs)):
+            for b in range(len(kfs)):
+                if a != b and (abs(a - b) == 1 or float(ov[a, b]) >= self.cfg.min_pair_overlap):
+                    out.append((kfs[a].id, kfs[b].id))
+        return out
+
+    def _positions(self) -> dict[int, int]:
+        return {k.id: i for i, k in enumerate(self.keyframes)}
+
+    def _positioned_prior(self, scale: float = 1.0, dtype: torch.dtype | None = None) -> LinearPrior | None:
+        """The prior with its blocks at window positions, its information scaled by ``scale`` and H, b in
+        ``dtype`` (default: the solver's; :meth:`LinearPrior.add_to` needs the dtype of the normal equations)."""
+        if self.prior is None:
+            return None
+        pos = self._positions()
+        solver_dtype, device = self._tensors()
+        dtype = dtype or solver_dtype
+        return LinearPrior(
+            blocks=[BlockId(b.kind, pos[b.index]) for b in self.prior.blocks],
+            H=(scale * self.prior.H).to(dtype=dtype, device=device),
+            b=(scale * self.prior.b).to(dtype=dtype, device=device),
+            x0=[x.to(dtype=solver_dtype, device=device) for x in self.prior.x0],
+        )
+
+    def _fixed(self) -> list[BlockId]:
+        """The gauge: the oldest pose while no prior anchors the window."""
+        return [BlockId(POSE, 0)] if self.prior is None else []
+
+    # ---- optimisation ---------------------------------------------------------------------------------------
+    def optimise(self) -> WindowReport:
+        """Jointly optimise the codes and poses of the window's keyframes (paper Sec. 4.1/4.3), coarse to fine,
+        from their current values; writes the results back into the keyframes."""
+        report = WindowReport()
+        if len(self.keyframes) < 2:
+            return report
+        t0 = time.perf_counter()
+        cfg: SfMConfig = self.cfg.sfm
+        dtype, device = self._tensors()
+        id_pairs = self.select_pairs()
+        pos = self._positions()
+        pairs = torch.tensor([[pos[a], pos[b]] for a, b in id_pairs], device=device)
+        state = self._state(id_pairs)
+        F_, C = state.codes.shape
+        layout = VariableLayout.for_sfm(F_, C, len(id_pairs), cfg.affine_brightness, self._fixed())
+        levels = build_levels([k.keyframe for k in self.keyframes], cfg.pyramid_levels, dtype, device)
+        n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
+        for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
+            # Coarser levels sum over fewer pixels: scale the prior alike so it keeps its weight against the data.
+            scale = levels[lvl].uv.shape[0] / n_prior if self.cfg.scale_prior_with_level else 1.0
+            prior = self._positioned_prior(scale)
+            problem = PairProblem(levels[lvl], pairs, cfg, [] if prior is None else [prior])
+            state, rep = levenberg_marquardt(problem, state, layout, cfg, iters)
+            report.levels.append((lvl, rep))
+        for i, kf in enumerate(self.keyframes):
+            kf.T_wc = project_to_se3(state.poses[i])
+            kf.code = state.codes[i].detach().clone()
+        for p, ids in enumerate(id_pairs):
+            self._affine[ids] = state.affine[p].detach().clone()
+        self._pairs = id_pairs
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+        report.pairs, report.ms = id_pairs, 1e3 * (time.perf_counter() - t0)
+        return report
+
+    # ---- marginalisation ------------------------------------------------------------------------------------
+    def marginal_prior(self) -> LinearPrior:
+        """The linear prior on the remaining keyframes left by marginalising the oldest one at the current
+        state (module docstring). Blocks by keyframe id; the linearisation point ``x0`` is the current state."""
+        cfg: SfMConfig = self.cfg.sfm
+        dtype, device = self._tensors()
+        kfs = self.keyframes
+        F_, C = len(kfs), kfs[0].code.shape[0]
+        old_id = kfs[0].id
+        pos = self._positions()
+        id_pairs = [p for p in self._pairs if old_id in p and p[0] in pos and p[1] in pos]
+        state = self._state(id_pairs)
+        marg = ([] if self.prior is None else [(BlockId(POSE, 0), POSE_DIM)]) + [(BlockId(CODE, 0), C)]
+        if cfg.affine_brightness:
+            marg += [(BlockId(AFFINE, p), AFFINE_DIM) for p in range(len(id_pairs))]
+        keep = [(BlockId(POSE, i), POSE_DIM) for i in range(1, F_)] + [(BlockId(CODE, i), C) for i in range(1, F_)]
+        layout = VariableLayout(marg + keep)
+        H = torch.zeros(layout.dim, layout.dim, dtype=torch.float64, device=device)
+        g = torch.zeros(layout.dim, dtype=torch.float64, device=device)
+        if id_pairs:  # residuals of the pairs that involve the leaving keyframe
+            lvl = self.prior_level
+            level = build_levels([k.keyframe for k in kfs], [lvl], dtype, device)[lvl]
+            pairs = torch.tensor([[pos[a], pos[b]] for a, b in id_pairs], device=device)
+            ev = evaluate_pairs(level, pairs, state.poses, state.codes, state.affine if cfg.affine_brightness
+                                else None, cfg)
+            terms = pair_jacobians(level, pairs, ev, with_code_b=True)
+            H_d, g_d = assemble(terms, pairs, state.poses, level, layout)
+            H += H_d.to(torch.float64)
+            g += g_d.to(torch.float64)
+        sl = layout.slice(BlockId(CODE, 0))  # the leaving keyframe's code prior 0.5 w |c|^2 (VAE prior)
+        H[sl, sl] += cfg.code_prior_weight * torch.eye(C, dtype=torch.float64, device=device)
+        g[sl] += cfg.code_prior_weight * state.codes[0].to(torch.float64)
+        for b, s in layout.slices():
+            if b.kind == AFFINE:  # the affine prior of the leaving pairs
+                inv_var = 1.0 / torch.tensor(cfg.affine_prior_sigma, dtype=torch.float64, device=device) ** 2
+                H[s, s] += torch.diag(inv_var)
+                g[s] += inv_var * state.affine[b.index].to(torch.float64)
+        old_prior = self._positioned_prior(dtype=torch.float64)
+        if old_prior is not None:  # the previous prior involves the leaving keyframe: it is marginalised too
+            old_prior.add_to(H, g, layout, state)
+        n_marg = sum(s for _, s in marg)
+        idx = torch.arange(layout.dim, device=device)
+        H_r, b_r = schur_complement(H, g, idx[:n_marg], idx[n_marg:])
+        # Keep only the blocks the prior actually constrains.
+        kept, sel, o = [], [], 0
+        for b, s in keep:
+            block = H_r[o:o + s]
+            if bool((block != 0).any()):
+                kept.append(b)
+                sel.extend(range(o, o + s))
+            o += s
+        sel_t = torch.tensor(sel, dtype=torch.long, device=device)
+        ids = [kfs[b.index].id for b in kept]
+        x0 = [state.block(b).detach().clone() for b in kept]
+        return LinearPrior(
+            blocks=[BlockId(b.kind, i) for b, i in zip(kept, ids)],
+            H=H_r[sel_t[:, None], sel_t[None, :]],
+            b=b_r[sel_t],
+            x0=x0,
+        )
+
+    def remove_oldest(self) -> MapKeyframe:
+        """Take the oldest keyframe out of the window: marginalise it into the prior (``cfg.marginalise``) or
+        drop its terms, and freeze it (final depth kept, decoder released)."""
+        if self.cfg.marginalise and len(self.keyframes) > 1:
+            self.prior = self.marginal_prior()
+        else:
+            self.prior = None
+        old = self.keyframes.pop(0)
+        self._affine = {p: a for p, a in self._affine.items() if old.id not in p}
+        self._pairs = [p for p in self._pairs if old.id not in p]
+        old.freeze()
+        return old
+

@@ -1,0 +1,124 @@
+"""``codeslam slam`` and the runner: outputs on a synthetic TUM sequence, the frame-range syntax, and one-line
+errors for bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from codeslam.cli import main
+from codeslam.data.registry import open_dataset
+from codeslam.errors import ConfigError
+from codeslam.eval.trajectory import read_tum
+from codeslam.recon.ply import read_ply
+from codeslam.slam.config import load_config
+from codeslam.slam.pipeline import parse_frame_range
+
+CONFIG = (
+    "tracker:\n  pyramid_levels: [2, 1, 0]\n  max_iterations: [8, 6, 5]\n"
+    "keyframes:\n  min_baseline_ratio: 0.04\n"
+    "window:\n  size: 3\n  sfm:\n    pyramid_levels: [2, 1, 0]\n    max_iterations: [6, 5, 4]\n"
+)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """A 20-frame synthetic TUM sequence at 64x48 written by ``codeslam synth``, and a one-frame one."""
+    root = tmp_path_factory.mktemp("slam_cli")
+    assert main(["synth", str(root / "seq"), "--scenes", "1", "--frames", "20", "--seed", "3", "--size", "64x48"]) == 0
+    assert main(["synth", str(root / "one"), "--scenes", "1", "--frames", "1", "--seed", "4", "--size", "64x48"]) == 0
+    (root / "slam.yaml").write_text(CONFIG)
+    return root
+
+
+def test_slam_cli_writes_a_tum_trajectory_and_a_summary(dataset, tmp_path, capsys):
+    out, js = tmp_path / "out", tmp_path / "summary.json"
+    seq_dir = dataset / "seq" / "scene_000"
+    rc = main(["slam", str(seq_dir), "--depth-model", "standin", "--size", "64x48", "--config",
+               str(dataset / "slam.yaml"), "--out", str(out), "--json", str(js), "--frames", "0:20:2", "-q",
+               "--threads", "1"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    traj = read_tum(out / "trajectory.txt")
+    seq = open_dataset(seq_dir)
+    assert len(traj) == 10
+    np.testing.assert_allclose(traj.timestamps, seq.timestamps[0:20:2], atol=1e-6)
+    np.testing.assert_allclose(traj.poses[0].numpy(), np.eye(4), atol=1e-9)  # the map's origin
+    kfs = read_tum(out / "keyframes.txt")
+    summary = json.loads(js.read_text())
+    assert len(kfs) == summary["keyframes"] >= 2
+    for key in ("frames", "keyframes", "tracking_failures", "fps", "ate_se3_rmse", "ate_sim3_rmse", "sim3_scale",
+                "no_motion_ate_rmse", "no_motion_ate_rmse_aligned", "rot_err_rmse_deg", "rpe_trans_rmse",
+                "ms_per_frame", "depth_model"):
+        assert key in summary, key
+    assert summary["frames"] == 10 and summary["tracking_failures"] == 0
+    assert summary["ate_se3_rmse"] < summary["no_motion_ate_rmse_aligned"]
+    assert json.loads((out / "result.json").read_text())["ate_se3_rmse"] == summary["ate_se3_rmse"]
+    resolved = load_config(out / "config.yaml")
+    assert resolved.window.size == 3 and resolved.tracker.pyramid_levels == (2, 1, 0)
+    with np.load(out / "keyframes.npz", allow_pickle=False) as npz:
+        assert npz["depth"].shape == (summary["keyframes"], 48, 64)
+        assert npz["T_wc"].shape == (summary["keyframes"], 4, 4) and npz["code"].shape[0] == summary["keyframes"]
+    assert (out / "trajectory.png").stat().st_size > 0
+    cloud = read_ply(out / "map.ply")
+    assert len(cloud) > 1000 and np.isfinite(cloud.xyz.numpy()).all()
+    assert "ATE SE(3)" in captured.out
+
+
+def _one_line_error(capsys, argv):
+    rc = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert rc == 2, (argv, err)
+    assert err.startswith("codeslam: error:") and "\n" not in err and "Traceback" not in err, err
+    return err
+
+
+def test_bad_inputs_fail_with_one_line(dataset, tmp_path, capsys):
+    seq_dir = str(dataset / "seq" / "scene_000")
+    out = str(tmp_path / "out")
+    standin = ["--depth-model", "standin", "--size", "64x48", "--out", out, "-q"]
+    assert "not found" in _one_line_error(capsys, ["slam", str(tmp_path / "missing"), *standin])
+    assert "outside" in _one_line_error(capsys, ["slam", seq_dir, "--frames", "0:500", *standin])
+    assert "at least 2" in _one_line_error(capsys, ["slam", seq_dir, "--frames", "5:6", *standin])
+    assert "at least 2" in _one_line_error(capsys, ["slam", str(dataset / "one" / "scene_000"), *standin])
+    _one_line_error(capsys, ["slam", seq_dir, "--frames", "a:b", *standin])
+    _one_line_error(capsys, ["slam", seq_dir, "--weights", str(tmp_path / "none.safetensors"), "--out", out, "-q"])
+    _one_line_error(capsys, ["slam", seq_dir, "--viewer", "opengl", *standin])
+    _one_line_error(capsys, ["slam", seq_dir, "--depth-model", "magic", "--out", out, "-q"])
+    _one_line_error(capsys, ["slam", seq_dir, "--depth-model", "standin", "--size", "64", "--out", out, "-q"])
+    _one_line_error(capsys, ["slam", seq_dir, "--device", "tpu", *standin])
+    bad_cfg = tmp_path / "bad.yaml"
+    bad_cfg.write_text("window:\n  size: 1\n")
+    assert "window.size" in _one_line_error(capsys, ["slam", seq_dir, "--config", str(bad_cfg), *standin])
+    assert not (tmp_path / "out" / "result.json").exists()  # nothing half-written
+
+
+def test_rerun_viewer_without_rerun_is_one_line(dataset, tmp_path, capsys):
+    pytest.importorskip("codeslam.viz.rerun_viewer")
+    try:
+        import rerun  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        pytest.skip("rerun-sdk is installed")
+    err = _one_line_error(capsys, ["slam", str(dataset / "seq" / "scene_000"), "--viewer", "rerun", "--depth-model",
+                                   "standin", "--size", "64x48", "--out", str(tmp_path / "o"), "-q"])
+    assert "rerun-sdk" in err
+
+
+@pytest.mark.parametrize(
+    ("spec", "n", "expected"),
+    [(None, 5, range(5)), ("1:4", 5, range(1, 4)), ("0:10:3", 10, range(0, 10, 3)), (":3", 9, range(3)),
+     ("6:", 9, range(6, 9)), ("::2", 5, range(0, 5, 2))],
+)
+def test_frame_ranges(spec, n, expected):
+    assert parse_frame_range(spec, n) == expected
+
+
+@pytest.mark.parametrize(("spec", "n"), [("3", 9), ("1:2:3:4", 9), ("0:10", 9), ("9:", 9), ("-1:3", 9),
+                                         ("0:5:0", 9), ("4:4", 9), ("x:y", 9), (None, 1), (None, 0)])
+def test_bad_frame_ranges(spec, n):
+    with pytest.raises(ConfigError):
+        parse_frame_range(spec, n)

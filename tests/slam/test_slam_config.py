@@ -1,0 +1,76 @@
+"""SLAM configuration: defaults, YAML overlay of nested sections, validation, the resolved config round trip."""
+
+from __future__ import annotations
+
+import pytest
+
+from codeslam.errors import ConfigError
+from codeslam.slam.config import SLAMConfig, WindowConfig, load_config, overlay_config
+
+
+def test_defaults_are_the_papers_window_and_coarse_to_fine_tracking():
+    cfg = SLAMConfig()
+    assert cfg.window.size == 4 and cfg.window.marginalise
+    assert cfg.tracker.pyramid_levels[0] > cfg.tracker.pyramid_levels[-1] == 0
+    assert cfg.decoder_levels == 4
+
+
+def test_yaml_overlay_of_nested_sections(tmp_path):
+    path = tmp_path / "slam.yaml"
+    path.write_text(
+        "device: cpu\n"
+        "tracker:\n  pyramid_levels: [2, 1, 0]\n  max_iterations: [5, 5, 5]\n  min_inlier_ratio: 0.7\n"
+        "keyframes:\n  max_rotation_deg: 5\n"
+        "window:\n  size: 3\n  sfm:\n    sigma_photometric: 0.1\n    pyramid_levels: [1, 0]\n"
+        "    max_iterations: [4, 4]\n"
+    )
+    cfg = load_config(path)
+    assert cfg.tracker.pyramid_levels == (2, 1, 0) and cfg.tracker.min_inlier_ratio == 0.7
+    assert cfg.keyframes.max_rotation_deg == 5.0 and isinstance(cfg.keyframes.max_rotation_deg, float)
+    assert cfg.window.size == 3 and cfg.window.sfm.sigma_photometric == 0.1
+    assert cfg.window.sfm.huber_photometric == SLAMConfig().window.sfm.huber_photometric  # untouched keys stay
+    assert cfg.decoder_levels == 3
+
+
+def test_resolved_config_round_trips_through_yaml(tmp_path):
+    cfg = overlay_config(SLAMConfig(), {"window": {"size": 5, "sfm": {"geometric": False}}, "dtype": "float64"})
+    path = tmp_path / "resolved.yaml"
+    path.write_text(cfg.to_yaml())
+    assert load_config(path) == cfg
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "tracker:\n  bogus: 1\n",  # unknown key
+        "bogus_section: {}\n",  # unknown section
+        "window:\n  size: 1\n",  # the initialisation needs two keyframes
+        "window:\n  size: four\n",  # wrong type
+        "tracker:\n  pyramid_levels: [2, 1]\n",  # iterations of another length
+        "tracker:\n  motion_model: teleport\n",
+        "window:\n  sfm:\n    sigma_photometric: -1\n",
+        "window: [1, 2]\n",
+        "dtype: float16\n",
+        "- just\n- a list\n",
+        "tracker: {min_overlap: 2}\n",
+        "{unbalanced\n",
+    ],
+)
+def test_bad_configs_are_one_line_config_errors(tmp_path, text):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as e:
+        load_config(path)
+    assert "\n" not in str(e.value)
+
+
+def test_missing_config_file(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "nope.yaml")
+
+
+def test_empty_file_gives_the_defaults(tmp_path):
+    path = tmp_path / "empty.yaml"
+    path.write_text("")
+    assert load_config(path) == SLAMConfig()
+    assert WindowConfig().size == 4

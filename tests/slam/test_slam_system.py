@@ -1,0 +1,100 @@
+"""The SLAM system end to end on a short synthetic sequence, and its handling of bad frames."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import torch
+from slam_scene import MemorySequence, small_config, synth_frames
+
+from codeslam.errors import CodeSLAMError
+from codeslam.geometry.camera import canonical_camera
+from codeslam.slam.depth import standin_depth_model
+from codeslam.slam.pipeline import evaluate_run, ground_truth, run_slam
+from codeslam.slam.system import CodeSLAM
+
+
+@pytest.fixture(scope="module")
+def run_and_gt():
+    """16 frames at 64x48 through a room (0.57 m, 35 degrees), 3 keyframes per window so that keyframes get
+    marginalised."""
+    frames = synth_frames(3, 16, 7.5)
+    seq = MemorySequence(frames)
+    system = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
+    sizes = []
+
+    class _Watch:
+        def update(self, frame, result, system):
+            sizes.append(len(system.window))
+
+        def close(self):
+            pass
+
+    run = run_slam(seq, system, frames[0].camera, visualizer=_Watch())
+    return run, ground_truth(seq, range(len(seq))), sizes
+
+
+def test_end_to_end_trajectory_beats_the_no_motion_baseline(run_and_gt):
+    run, gt, _ = run_and_gt
+    ev = evaluate_run(run.trajectory, gt)
+    print(f"ATE se3 {ev['ate_se3_rmse']:.4f} m, sim3 {ev['ate_sim3_rmse']:.4f} m (scale {ev['sim3_scale']:.3f}); "
+          f"no-motion {ev['no_motion_ate_rmse']:.4f} m, aligned {ev['no_motion_ate_rmse_aligned']:.4f} m; "
+          f"rotation {ev['rot_err_rmse_deg']:.2f} deg; path {ev['path_length_gt']:.3f} m")
+    assert all(r.tracking_ok for r in run.results)
+    assert ev["ate_se3_rmse"] < 0.25 * ev["no_motion_ate_rmse_aligned"]
+    assert ev["ate_sim3_rmse"] < 0.25 * ev["no_motion_ate_rmse_aligned"]
+    assert 0.7 < ev["sim3_scale"] < 1.4  # the depth model's scale is metric; the map keeps it roughly
+
+
+def test_keyframes_window_and_marginalisation(run_and_gt):
+    run, _, sizes = run_and_gt
+    res = run.results
+    assert res[0].is_keyframe and res[0].status == "initialising" and res[0].keyframe_id == 0
+    assert torch.equal(run.trajectory.poses[0], torch.eye(4, dtype=torch.float64))  # the map's origin
+    kf_results = [r for r in res if r.is_keyframe]
+    assert len(run.keyframes) == len(kf_results) >= 4
+    assert max(sizes) == 3  # never more keyframes in the window than configured
+    marginalised = [r.marginalised_id for r in res if r.marginalised_id is not None]
+    assert marginalised == list(range(len(run.keyframes) - 3))  # the oldest, in order
+    assert all(k.depth is not None and k.keyframe.decoder is None for k in run.keyframes[:-3])
+    assert all(r.status == "tracking" for r in res[res.index(kf_results[1]):])
+    second = kf_results[1]
+    assert second.window is not None and second.window.iterations > 0  # two-frame SfM initialisation
+    assert {"track", "decode", "window"} <= set(second.timings_ms)
+    # Every frame's final pose is its keyframe's final pose composed with its tracked relative pose.
+    assert [k.frame_index for k in run.keyframes] == [r.index for r in kf_results]
+    for k in run.keyframes:
+        torch.testing.assert_close(run.trajectory.poses[k.frame_index], k.T_wc)
+
+
+def test_a_corrupt_frame_is_flagged_and_the_system_continues():
+    frames = synth_frames(3, 16, 10.0)[:6]
+    bad = dataclasses.replace(frames[3], image=frames[3].image.clone())
+    bad.image[:, 5:9, 5:9] = float("nan")
+    frames[3] = bad
+    system = CodeSLAM(small_config(), standin_depth_model(num_levels=3))
+    results = [system.process(f) for f in frames]
+    assert not results[3].tracking_ok and results[3].status == "lost" and "non-finite" in results[3].reason
+    assert bool(torch.isfinite(results[3].T_wc).all())
+    assert all(r.tracking_ok for i, r in enumerate(results) if i != 3)
+    assert system.tracking_failures() == [3]
+
+
+def test_bad_inputs_to_the_system_are_user_errors():
+    frames = synth_frames(3, 16, 10.0)[:3]
+    cfg = small_config()
+    first = dataclasses.replace(frames[0], image=frames[0].image.clone())
+    first.image[0, 0, 0] = float("inf")
+    with pytest.raises(CodeSLAMError, match="first"):
+        CodeSLAM(cfg, standin_depth_model(num_levels=3)).process(first)
+    with pytest.raises(CodeSLAMError, match="pyramid levels"):
+        CodeSLAM(cfg, standin_depth_model(num_levels=2)).process(frames[0])
+    with pytest.raises(CodeSLAMError, match="depth maps"):
+        CodeSLAM(cfg, standin_depth_model(num_levels=3)).process(dataclasses.replace(frames[0], depth=None))
+    system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
+    system.process(frames[0])
+    with pytest.raises(CodeSLAMError, match="camera"):
+        system.process(dataclasses.replace(frames[1], camera=canonical_camera(64, 48, hfov_deg=70)))
+    with pytest.raises(CodeSLAMError, match="timestamp"):
+        system.process(dataclasses.replace(frames[1], timestamp=frames[0].timestamp))

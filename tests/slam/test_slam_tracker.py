@@ -1,0 +1,88 @@
+"""Photometric tracking against a keyframe: recovers a known motion coarse to fine, and reports failure (never a
+wild pose) on an unrelated or corrupt image."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from slam_scene import small_config, synth_frames
+
+from codeslam.geometry.camera import pixel_grid
+from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+from codeslam.sfm.keyframes import Keyframe
+from codeslam.sfm.warp import warp
+from codeslam.slam.depth import standin_depth_model, standin_true_code
+from codeslam.slam.tracker import PhotometricTracker
+
+D = torch.float64
+
+
+def _setup(seed=3):
+    frames = synth_frames(seed, 12, 10.0)
+    cfg = small_config()
+    tracker = PhotometricTracker(cfg.tracker, cfg.window.sfm)
+    # The depth model reaches the true depth at the keyframe's "true" code c*, which the tracker is given.
+    c_true = standin_true_code(0, 32, 0.2, seed=7)
+    dec = standin_depth_model(num_levels=3, seed=7)(frames[0])
+    kf = Keyframe(frames[0].gray.float(), frames[0].camera, dec.to(torch.float32))
+    return frames, tracker, kf, c_true.float()
+
+
+def _err(T, T_ref):
+    e = se3_log(se3_inverse(T_ref) @ T)
+    return float(e[:3].norm()), math.degrees(float(e[3:].norm()))
+
+
+def _pixel_error(T_kf, T_true, frame):
+    """Mean distance (pixels) between where the keyframe's pixels land in the frame under ``T_kf`` and under
+    the true pose, with the true depth: the tracking error as the image sees it."""
+    cam = frame.camera
+    uv = pixel_grid(cam.height, cam.width, D).reshape(1, -1, 2)
+    depth = frame.depth.to(D).reshape(1, -1)
+    params = cam.params(D)
+    v_est, _, _ = warp(uv, depth, se3_inverse(T_kf)[None], params, params)  # T_BA = T_kf^-1
+    v_true, _, _ = warp(uv, depth, se3_inverse(T_true)[None], params, params)
+    return float((v_est - v_true).norm(dim=-1).mean())
+
+
+def test_tracking_recovers_a_known_motion_from_the_identity():
+    frames, tracker, kf, code = _setup()
+    for j in (1, 2, 3):  # rotations of about 3, 6 and 9 degrees (3 to 9 pixels), translations of 0.4 to 2 cm
+        T_true = se3_inverse(frames[0].pose) @ frames[j].pose
+        res = tracker.track(kf, code, frames[j].gray, frames[j].camera, torch.eye(4, dtype=D))
+        assert res.ok, res.reason
+        px, px0 = _pixel_error(res.T_kf, T_true, frames[0]), _pixel_error(torch.eye(4, dtype=D), T_true, frames[0])
+        t, r = _err(res.T_kf, T_true)
+        _, r0 = _err(torch.eye(4, dtype=D), T_true)
+        # measured: 0.1-0.2 px, rotation within 0.25 degrees
+        assert px < 0.05 * px0 and px < 0.3 and r < 0.1 * r0 and t < 0.015, (j, px, px0, t, r, r0)
+        assert res.overlap > 0.7 and res.inlier_ratio > 0.9
+        assert abs(float(torch.det(res.T_kf[:3, :3])) - 1.0) < 1e-12
+
+
+def test_tracking_a_frame_against_its_own_keyframe_stays_at_the_identity():
+    frames, tracker, kf, code = _setup()
+    start = se3_exp(torch.tensor([0.02, -0.01, 0.01, 0.01, -0.02, 0.0], dtype=D))
+    res = tracker.track(kf, code, frames[0].gray, frames[0].camera, start)
+    eye = torch.eye(4, dtype=D)
+    px, px0 = _pixel_error(res.T_kf, eye, frames[0]), _pixel_error(start, eye, frames[0])
+    assert res.ok and px < 0.05 * px0 and px < 0.15, (px, px0)  # measured 0.06 px from 1.9 px
+    assert abs(float(res.affine[0])) < 0.02 and abs(float(res.affine[1])) < 0.01  # no brightness change
+
+
+def test_tracking_an_unrelated_image_fails():
+    frames, tracker, kf, code = _setup()
+    for seed, j in [(11, 0), (11, 6), (13, 0), (21, 6)]:  # other rooms
+        other = synth_frames(seed, 12, 10.0)[j]
+        res = tracker.track(kf, code, other.gray, other.camera, torch.eye(4, dtype=D))
+        assert not res.ok and res.reason, (seed, j, res)
+
+
+def test_tracking_a_corrupt_image_fails_with_a_finite_pose_left_alone():
+    frames, tracker, kf, code = _setup()
+    bad = frames[1].gray.clone()
+    bad[:, 10:20, 10:20] = float("nan")
+    start = se3_exp(torch.tensor([0.01, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=D))
+    res = tracker.track(kf, code, bad, frames[1].camera, start)
+    assert not res.ok and "non-finite" in res.reason

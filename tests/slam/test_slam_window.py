@@ -1,0 +1,172 @@
+"""Marginalisation: the Schur-complement prior is the exact marginal of a linear-Gaussian problem, and on the
+real sliding window it carries the marginalised keyframe's anchoring (the gauge) into later windows."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+from slam_scene import small_config, synth_frames
+
+from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.keyframes import Keyframe
+from codeslam.sfm.solver import levenberg_marquardt
+from codeslam.sfm.variables import CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
+from codeslam.slam.depth import standin_depth_model
+from codeslam.slam.poses import project_to_se3
+from codeslam.slam.window import MapKeyframe, SlidingWindow, schur_complement
+
+D = torch.float64
+
+
+def _random_spd(n: int, gen: torch.Generator, rank: int | None = None) -> torch.Tensor:
+    A = torch.randn(n, rank or n, generator=gen, dtype=D)
+    return A @ A.T + (0 if rank else 0.1) * torch.eye(n, dtype=D)
+
+
+class _Quadratic:
+    """A problem for the LM solver: ``0.5 x^T A x + c^T x (+ priors)`` over additive code blocks (linear-Gaussian)."""
+
+    def __init__(self, A, c, blocks, priors=()):
+        self.A, self.c, self.blocks, self.priors = A, c, blocks, list(priors)
+
+    def _x(self, state):
+        return torch.cat([state.codes[i] for i in self.blocks])
+
+    def evaluate(self, state):
+        x = self._x(state)
+        cost = 0.5 * x @ self.A @ x + self.c @ x + sum(p.cost(state) for p in self.priors)
+        return float(cost), None
+
+    def linearize(self, state, cache, layout, profile=None):
+        H, g = self.A.clone(), self.A @ self._x(state) + self.c
+        for p in self.priors:
+            p.add_to(H, g, layout, state)
+        return H, g
+
+
+def test_schur_prior_is_the_exact_marginal_of_a_linear_gaussian_problem():
+    """Full cost f_m(x_m, x_r) + f_r(x_r): marginalising x_m out of f_m alone and minimising the prior plus f_r
+    gives the full problem's x_r and its covariance, also through LinearPrior and the LM solver."""
+    gen = torch.Generator().manual_seed(0)
+    m, r = 3, 4  # code block 0 is marginalised, block 1 stays
+    H1 = _random_spd(m + r, gen, rank=m + 2)  # the terms touching x_m (rank deficient on x_r alone)
+    g1 = torch.randn(m + r, generator=gen, dtype=D)
+    H2 = torch.zeros(m + r, m + r, dtype=D)
+    H2[m:, m:] = _random_spd(r, gen)  # terms on x_r only
+    g2 = torch.zeros(m + r, dtype=D)
+    g2[m:] = torch.randn(r, generator=gen, dtype=D)
+    x_full = -torch.linalg.solve(H1 + H2, g1 + g2)
+    cov_full = torch.linalg.inv(H1 + H2)[m:, m:]
+
+    idx = torch.arange(m + r)
+    Hp, bp = schur_complement(H1, g1, idx[:m], idx[m:])
+    x_r = -torch.linalg.solve(Hp + H2[m:, m:], bp + g2[m:])
+    torch.testing.assert_close(x_r, x_full[m:])
+    torch.testing.assert_close(torch.linalg.inv(Hp + H2[m:, m:]), cov_full)
+
+    # The same through the solver: a LinearPrior linearised at x0 = 0 on the kept block.
+    cfg = SfMConfig(relative_cost_tolerance=1e-14, step_tolerance=1e-14)
+    state = SfMState(torch.eye(4, dtype=D)[None], torch.zeros(1, r, dtype=D), torch.zeros(0, 2, dtype=D))
+    prior = LinearPrior([BlockId(CODE, 0)], Hp, bp, [torch.zeros(r, dtype=D)])
+    layout = VariableLayout([(BlockId(CODE, 0), r)])
+    out, _ = levenberg_marquardt(_Quadratic(H2[m:, m:], g2[m:], [0], [prior]), state, layout, cfg, 50)
+    torch.testing.assert_close(out.codes[0], x_full[m:], atol=1e-7, rtol=1e-7)
+
+    # And linearised away from the origin (x0 != 0): the prior's cost is in d = x - x0.
+    x0 = torch.randn(r, generator=gen, dtype=D)
+    prior_x0 = LinearPrior([BlockId(CODE, 0)], Hp, bp + Hp @ x0, [x0])  # the same quadratic, re-centred at x0
+    state0 = SfMState(state.poses, x0[None].clone(), state.affine)
+    out0, _ = levenberg_marquardt(_Quadratic(H2[m:, m:], g2[m:], [0], [prior_x0]), state0, layout, cfg, 50)
+    torch.testing.assert_close(out0.codes[0], x_full[m:], atol=1e-7, rtol=1e-7)
+
+
+def test_schur_complement_of_an_unconstrained_direction_uses_the_pseudo_inverse():
+    gen = torch.Generator().manual_seed(1)
+    H = _random_spd(5, gen)
+    H[0, :] = 0.0
+    H[:, 0] = 0.0  # variable 0 appears in no term: marginalising it must not change the rest
+    g = torch.randn(5, generator=gen, dtype=D)
+    g[0] = 0.0
+    idx = torch.arange(5)
+    Hp, bp = schur_complement(H, g, idx[:2], idx[2:])
+    Hq, bq = schur_complement(H, g, idx[1:2], idx[2:])
+    torch.testing.assert_close(Hp, Hq)
+    torch.testing.assert_close(bp, bq)
+
+
+def test_project_to_se3_returns_the_closest_rotation():
+    gen = torch.Generator().manual_seed(2)
+    T = se3_exp(torch.randn(4, 6, generator=gen, dtype=D))
+    noisy = T.clone()
+    noisy[:, :3, :3] += 1e-4 * torch.randn(4, 3, 3, generator=gen, dtype=D)
+    P = project_to_se3(noisy.float())
+    R = P[:, :3, :3]
+    torch.testing.assert_close(R @ R.transpose(1, 2), torch.eye(3, dtype=D).expand(4, 3, 3), atol=1e-12, rtol=0)
+    torch.testing.assert_close(torch.det(R), torch.ones(4, dtype=D))
+    torch.testing.assert_close(P, T, atol=5e-4, rtol=0)
+    torch.testing.assert_close(project_to_se3(T), T)
+
+
+def _window(frames, cfg, T_wc):
+    dm = standin_depth_model(num_levels=3, seed=5)
+    w = SlidingWindow(cfg.window)
+    for i, (f, T) in enumerate(zip(frames, T_wc)):
+        dec = dm(f).to(torch.float32)
+        code = torch.zeros(dec.code_size)
+        w.add(MapKeyframe(i, f.index, f.timestamp, Keyframe(f.gray, f.camera, dec), T.clone(), code))
+    return w
+
+
+def _pose_err(T, T_ref):
+    e = se3_log(se3_inverse(T_ref) @ T)
+    return float(e[:3].norm()), math.degrees(float(e[3:].norm()))
+
+
+@pytest.mark.parametrize("marginalise", [True, False])
+def test_marginal_prior_anchors_the_window_after_the_fixed_keyframe_leaves(marginalise):
+    """Window of 4 keyframes (the first one fixed, the gauge) -> optimise -> remove the first. With the
+    marginal prior the remaining poses are anchored: moving all of them by one rigid motion (a gauge move the
+    remaining pairs cannot see) and re-optimising brings them back. Dropping the keyframe instead (no prior,
+    the oldest remaining pose becomes the fixed gauge) keeps the moved poses where they are."""
+    frames = synth_frames(3, 16, 10.0)[::5]  # keyframes 0, 5, 10, 15
+    G0 = se3_inverse(frames[0].pose)
+    cfg = small_config(size=4, marginalise=marginalise)
+    w = _window(frames, cfg, [G0 @ f.pose for f in frames])
+    w.optimise()
+    optimum = [k.T_wc.clone() for k in w.keyframes[1:]]
+    codes = [k.code.clone() for k in w.keyframes[1:]]
+    old = w.remove_oldest()
+    assert old.keyframe.decoder is None and old.depth is not None  # frozen: decoder released, depth kept
+    assert len(w) == 3
+    if marginalise:
+        assert w.prior is not None and {b.index for b in w.prior.blocks} == {1, 2, 3}
+        assert {b.kind for b in w.prior.blocks} == {POSE, CODE}
+        H = w.prior.H
+        torch.testing.assert_close(H, H.T)
+        assert bool((torch.linalg.eigvalsh(H) > -1e-6 * H.diagonal().max()).all())  # positive semi-definite
+    else:
+        assert w.prior is None
+    gauge = se3_exp(torch.tensor([0.03, -0.02, 0.02, 0.0, 0.02, -0.01], dtype=D))  # move the whole window
+    for k, T in zip(w.keyframes, optimum):
+        k.T_wc = gauge @ T
+    w.optimise()
+    errs = [_pose_err(k.T_wc, T) for k, T in zip(w.keyframes, optimum)]
+    if marginalise:
+        assert all(t < 0.004 and r < 0.2 for t, r in errs), errs  # back at the optimum
+        for k, c in zip(w.keyframes, codes):
+            assert float((k.code - c).norm()) < 0.1 * float(c.norm()) + 0.05
+    else:
+        assert all(t > 0.02 for t, _ in errs), errs  # nothing anchors the old world frame
+
+
+def test_window_uses_consecutive_and_overlapping_pairs_in_both_directions():
+    frames = synth_frames(3, 16, 10.0)[::5]
+    G0 = se3_inverse(frames[0].pose)
+    w = _window(frames, small_config(size=4), [G0 @ f.pose for f in frames])
+    pairs = w.select_pairs()
+    for a, b in [(0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2)]:
+        assert (a, b) in pairs
+    assert all(a != b for a, b in pairs) and len(set(pairs)) == len(pairs)
