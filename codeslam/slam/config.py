@@ -52,6 +52,10 @@ class TrackerConfig:
     min_explained_variance: float = 0.5
     """Tracking fails when the aligned frame explains less than this share of the keyframe's intensity variance
     (measured on the generator's rooms: >= 0.98 when aligned, <= 0.38 for other rooms with enough overlap)."""
+    min_intensity_std: float = 0.01
+    """Tracking fails when the keyframe's intensities (in [0, 1]) over the overlap vary less than this (std): a
+    textureless view (a black or saturated frame, a blank wall) constrains no pose, and the explained-variance
+    test divides by that variance, so without this check such a frame would pass as tracked."""
     max_log_gain: float = 0.7
     """Tracking fails when the brightness gain leaves exp(+-0.7) = [0.5, 2]: no camera's exposure changes that
     much between frames; an unrelated image is often "explained" by a gain near 0."""
@@ -67,6 +71,8 @@ class TrackerConfig:
             raise ConfigError(f"tracker.relative_cost_tolerance must be positive, got {self.relative_cost_tolerance}")
         if self.min_explained_variance > 1.0:
             raise ConfigError(f"tracker.min_explained_variance must be <= 1, got {self.min_explained_variance}")
+        if not self.min_intensity_std >= 0:
+            raise ConfigError(f"tracker.min_intensity_std must be >= 0, got {self.min_intensity_std}")
         if not self.max_log_gain > 0:
             raise ConfigError(f"tracker.max_log_gain must be positive, got {self.max_log_gain}")
         if not self.inlier_sigmas > 0:

@@ -134,6 +134,7 @@ class PhotometricTracker:
         inliers = valid & (r.abs() <= cfg.inlier_sigmas * ev.sigma[0, 0])
         inlier_ratio = int(inliers.sum()) / max(n_valid, 1)
         explained = 0.0
+        var_A = 0.0
         if n_valid > 1:
             var_A = float(gray_A[valid].var())
             explained = 1.0 - float(r[valid].square().mean()) / max(var_A, torch.finfo(r.dtype).tiny)
@@ -146,6 +147,8 @@ class PhotometricTracker:
             reason = f"overlap {overlap:.2f} below {cfg.min_overlap:.2f}"
         elif inlier_ratio < cfg.min_inlier_ratio:
             reason = f"inlier ratio {inlier_ratio:.2f} below {cfg.min_inlier_ratio:.2f}"
+        elif var_A < cfg.min_intensity_std**2:
+            reason = f"no texture to track (intensity std {math.sqrt(var_A):.4f} below {cfg.min_intensity_std:g})"
         elif explained < cfg.min_explained_variance:
             reason = f"explained intensity variance {explained:.2f} below {cfg.min_explained_variance:.2f}"
         elif abs(float(affine[0])) > cfg.max_log_gain:

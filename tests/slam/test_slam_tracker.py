@@ -86,3 +86,14 @@ def test_tracking_a_corrupt_image_fails_with_a_finite_pose_left_alone():
     start = se3_exp(torch.tensor([0.01, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=D))
     res = tracker.track(kf, code, bad, frames[1].camera, start)
     assert not res.ok and "non-finite" in res.reason
+
+
+def test_tracking_textureless_frames_fails_instead_of_passing_as_tracked():
+    # A black keyframe and a black frame give zero residuals everywhere: without a texture check the explained
+    # variance (0/0) passed, and SLAM on black frames reported identity poses as tracked.
+    frames, tracker, _, code = _setup()
+    black = torch.zeros_like(frames[0].gray)
+    dec = standin_depth_model(num_levels=3, seed=7)(frames[0])
+    kf_black = Keyframe(black.float(), frames[0].camera, dec.to(torch.float32))
+    res = tracker.track(kf_black, code, black, frames[0].camera, torch.eye(4, dtype=D))
+    assert not res.ok and "texture" in res.reason, res
