@@ -30,27 +30,32 @@ class Sequence(abc.ABC):
     def detect(root: Path) -> bool:
         """Whether ``root`` looks like a folder of this format (cheap: file names only)."""
 
-    @property
-    @abc.abstractmethod
-    def camera(self) -> PinholeCamera:
-        """The (undistorted) pinhole camera of every frame."""
+    # Readers set these three attributes in __init__; the accessors below are shared by every format.
+    _camera: PinholeCamera  # the (undistorted) camera of every frame
+    _stamps: np.ndarray  # (N,) float64 seconds
+    _gt: torch.Tensor | None  # (N, 4, 4) float64 T_wc at the frame timestamps (NaN rows: no pose), or None
 
     @property
-    @abc.abstractmethod
+    def camera(self) -> PinholeCamera:
+        """The (undistorted) pinhole camera of every frame."""
+        return self._camera
+
+    @property
     def timestamps(self) -> np.ndarray:
         """(N,) float64 seconds of the frames."""
+        return self._stamps
 
     @property
     @abc.abstractmethod
     def has_depth(self) -> bool: ...
 
     @property
-    @abc.abstractmethod
     def gt_poses(self) -> torch.Tensor | None:
         """(N, 4, 4) float64 ground-truth ``T_wc`` at the frame timestamps, or None."""
+        return self._gt
 
-    @abc.abstractmethod
-    def __len__(self) -> int: ...
+    def __len__(self) -> int:
+        return len(self._stamps)
 
     @abc.abstractmethod
     def __getitem__(self, i: int) -> Frame: ...

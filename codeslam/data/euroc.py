@@ -191,23 +191,8 @@ class EurocSequence(Sequence):
         )
 
     @property
-    def camera(self) -> PinholeCamera:
-        return self._camera
-
-    @property
-    def timestamps(self) -> np.ndarray:
-        return self._stamps
-
-    @property
     def has_depth(self) -> bool:
         return False
-
-    @property
-    def gt_poses(self) -> torch.Tensor | None:
-        return self._gt
-
-    def __len__(self) -> int:
-        return len(self._stamps)
 
     def __getitem__(self, i: int) -> Frame:
         i = frame_index(i, len(self))

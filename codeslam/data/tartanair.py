@@ -127,23 +127,8 @@ class TartanAirSequence(Sequence):
         return (Path(root) / "image_left").is_dir()
 
     @property
-    def camera(self) -> PinholeCamera:
-        return self._camera
-
-    @property
-    def timestamps(self) -> np.ndarray:
-        return self._stamps
-
-    @property
     def has_depth(self) -> bool:
         return self._depths is not None
-
-    @property
-    def gt_poses(self) -> torch.Tensor | None:
-        return self._gt
-
-    def __len__(self) -> int:
-        return len(self._images)
 
     def __getitem__(self, i: int) -> Frame:
         i = frame_index(i, len(self))
