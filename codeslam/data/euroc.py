@@ -36,6 +36,7 @@ from codeslam.data.imageio import (
     resolve_in_root,
     undistort_frame,
 )
+from codeslam.data.textfile import check_increasing, data_lines
 from codeslam.errors import CodeSLAMError, DatasetError
 from codeslam.eval.association import interpolate_poses
 from codeslam.eval.euroc_csv import NS_PER_S, read_euroc_csv
@@ -55,17 +56,9 @@ def mav_folder(root: Path) -> Path:
 
 def read_cam_csv(path: Path, data_dir: Path) -> tuple[np.ndarray, list[Path]]:
     """``timestamp[ns],filename`` lines -> ((N,) float64 seconds, N image paths inside ``data_dir``)."""
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"cannot read {path}: {e}") from None
     stamps_ns: list[int] = []
     files: list[Path] = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        where = f"{path}:{lineno}"
+    for where, line in data_lines(path):
         parts = [p.strip() for p in line.split(",")]
         if len(parts) != 2:
             raise DatasetError(f"{where}: expected 'timestamp[ns],filename', got {len(parts)} fields")
@@ -73,8 +66,7 @@ def read_cam_csv(path: Path, data_dir: Path) -> tuple[np.ndarray, list[Path]]:
             ns = int(parts[0])
         except ValueError:
             raise DatasetError(f"{where}: timestamp {parts[0]!r} is not an integer (nanoseconds)") from None
-        if stamps_ns and ns <= stamps_ns[-1]:
-            raise DatasetError(f"{where}: timestamp {parts[0]} is not after the previous one")
+        check_increasing(stamps_ns, ns, where, parts[0])
         files.append(require_file(resolve_in_root(data_dir, parts[1], where), where))
         stamps_ns.append(ns)
     # int / int true division is correctly rounded (float(ns) / 1e9 is not).

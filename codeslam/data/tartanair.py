@@ -32,6 +32,7 @@ import torch
 from codeslam.data.base import Sequence
 from codeslam.data.frame import Frame
 from codeslam.data.imageio import check_frame_shapes, frame_index, read_depth_npy, read_rgb
+from codeslam.data.textfile import check_quaternion, data_lines, finite_floats
 from codeslam.errors import DatasetError
 from codeslam.eval.trajectory import poses_from_tum_rows
 from codeslam.geometry.camera import PinholeCamera
@@ -56,26 +57,13 @@ def ned_to_optical(T_ned: torch.Tensor) -> torch.Tensor:
 
 def read_pose_file(path: Path) -> torch.Tensor:
     """``tx ty tz qx qy qz qw`` per line -> (N, 4, 4) float64 NED camera-to-world poses."""
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"cannot read {path}: {e}") from None
     rows = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
+    for where, line in data_lines(path):
         parts = line.split()
         if len(parts) != 7:
-            raise DatasetError(f"{path}:{lineno}: expected 'tx ty tz qx qy qz qw', got {len(parts)} fields")
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            raise DatasetError(f"{path}:{lineno}: not a number in {line!r}") from None
-        if not all(np.isfinite(vals)):
-            raise DatasetError(f"{path}:{lineno}: non-finite value in {line!r}")
-        if np.linalg.norm(vals[3:]) < 1e-6:
-            raise DatasetError(f"{path}:{lineno}: zero quaternion")
+            raise DatasetError(f"{where}: expected 'tx ty tz qx qy qz qw', got {len(parts)} fields")
+        vals = finite_floats(parts, where, line)
+        check_quaternion(vals[3:], where)
         rows.append(vals)
     if not rows:
         return torch.zeros(0, 4, 4, dtype=torch.float64)

@@ -51,6 +51,7 @@ from codeslam.data.imageio import (
     resolve_in_root,
     undistort_frame,
 )
+from codeslam.data.textfile import check_increasing, data_lines, finite_floats
 from codeslam.errors import CodeSLAMError, DatasetError
 from codeslam.eval.association import associate, interpolate_poses
 from codeslam.eval.trajectory import read_tum
@@ -84,28 +85,14 @@ def read_list_file(path: Path, root: Path) -> tuple[np.ndarray, list[Path]]:
     not a finite number, timestamps not strictly increasing, a path outside ``root`` or a missing file is
     a DatasetError naming ``file:line``.
     """
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"cannot read {path}: {e}") from None
     stamps: list[float] = []
     files: list[Path] = []
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        where = f"{path}:{lineno}"
+    for where, line in data_lines(path):
         parts = line.split()
         if len(parts) != 2:
             raise DatasetError(f"{where}: expected 'timestamp filename', got {len(parts)} fields")
-        try:
-            t = float(parts[0])
-        except ValueError:
-            raise DatasetError(f"{where}: timestamp {parts[0]!r} is not a number") from None
-        if not math.isfinite(t):
-            raise DatasetError(f"{where}: timestamp {parts[0]!r} is not finite")
-        if stamps and t <= stamps[-1]:
-            raise DatasetError(f"{where}: timestamp {parts[0]} is not after the previous one ({stamps[-1]:.6f})")
+        (t,) = finite_floats(parts[:1], where, line)
+        check_increasing(stamps, t, where, parts[0])
         files.append(require_file(resolve_in_root(root, parts[1], where), where))
         stamps.append(t)
     return np.array(stamps, dtype=np.float64), files
@@ -113,11 +100,7 @@ def read_list_file(path: Path, root: Path) -> tuple[np.ndarray, list[Path]]:
 
 def read_calib_txt(path: Path, width: int, height: int) -> PinholeCamera:
     """``fx fy cx cy [k1 k2 p1 p2 [k3]]`` on the first non-comment line -> camera of ``width`` x ``height``."""
-    try:
-        lines = [ln.strip() for ln in path.read_text().splitlines()]
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"cannot read {path}: {e}") from None
-    lines = [ln for ln in lines if ln and not ln.startswith("#")]
+    lines = [line for _, line in data_lines(path)]
     if not lines:
         raise DatasetError(f"{path} is empty; expected 'fx fy cx cy [k1 k2 p1 p2 k3]'")
     parts = lines[0].replace(",", " ").split()

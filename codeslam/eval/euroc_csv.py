@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from codeslam.data.textfile import check_increasing, check_quaternion, data_lines, finite_floats
 from codeslam.errors import DatasetError
 from codeslam.eval.trajectory import Trajectory, poses_from_tum_rows, tum_rows_from_poses
 from codeslam.io import atomic_write
@@ -47,33 +48,22 @@ def read_euroc_csv(path: str | Path) -> Trajectory:
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"trajectory file not found: {path}")
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"cannot read trajectory file {path}: {e}") from None
     stamps_ns: list[int] = []
     rows: list[list[float]] = []  # tx ty tz qx qy qz qw (TUM order, for poses_from_tum_rows)
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
+    for where, line in data_lines(path, "trajectory file "):
         parts = [p.strip() for p in line.split(",")]
         if len(parts) < 8:
             raise DatasetError(
-                f"{path}:{lineno}: expected 'timestamp[ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z', "
+                f"{where}: expected 'timestamp[ns], p_x, p_y, p_z, q_w, q_x, q_y, q_z', "
                 f"got {len(parts)} comma-separated fields"
             )
         try:
             ns = _parse_ns(parts[0])
-            vals = [float(p) for p in parts[1:8]]
         except (ValueError, InvalidOperation):
-            raise DatasetError(f"{path}:{lineno}: not a number in {line!r}") from None
-        if not all(np.isfinite(vals)):
-            raise DatasetError(f"{path}:{lineno}: non-finite value in {line!r}")
-        if np.linalg.norm(vals[3:7]) < 1e-6:
-            raise DatasetError(f"{path}:{lineno}: zero quaternion")
-        if stamps_ns and ns <= stamps_ns[-1]:
-            raise DatasetError(f"{path}:{lineno}: timestamp {parts[0]} is not after the previous one")
+            raise DatasetError(f"{where}: not a number in {line!r}") from None
+        vals = finite_floats(parts[1:8], where, line)
+        check_quaternion(vals[3:7], where)
+        check_increasing(stamps_ns, ns, where, parts[0])
         stamps_ns.append(ns)
         qw, qx, qy, qz = vals[3:7]  # EuRoC: w first
         rows.append(vals[:3] + [qx, qy, qz, qw])

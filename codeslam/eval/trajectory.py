@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from codeslam.data.textfile import check_increasing, check_quaternion, data_lines, finite_floats
 from codeslam.errors import DatasetError
 from codeslam.geometry.quaternion import quat_xyzw_to_rotmat, rotmat_to_quat_xyzw
 from codeslam.io import atomic_write
@@ -82,27 +83,13 @@ def read_tum(path: str | Path) -> Trajectory:
         raise DatasetError(f"trajectory file not found: {path}")
     stamps: list[float] = []
     rows: list[list[float]] = []
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as e:
-        raise DatasetError(f"cannot read trajectory file {path}: {e}") from None
-    for lineno, line in enumerate(text.splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
+    for where, line in data_lines(path, "trajectory file "):
         parts = line.replace(",", " ").split()
         if len(parts) != 8:
-            raise DatasetError(f"{path}:{lineno}: expected 'timestamp tx ty tz qx qy qz qw', got {len(parts)} fields")
-        try:
-            vals = [float(p) for p in parts]
-        except ValueError:
-            raise DatasetError(f"{path}:{lineno}: not a number in {line!r}") from None
-        if not all(np.isfinite(vals)):
-            raise DatasetError(f"{path}:{lineno}: non-finite value in {line!r}")
-        if np.linalg.norm(vals[4:8]) < 1e-6:
-            raise DatasetError(f"{path}:{lineno}: zero quaternion")
-        if stamps and vals[0] <= stamps[-1]:
-            raise DatasetError(f"{path}:{lineno}: timestamp {parts[0]} is not after the previous one")
+            raise DatasetError(f"{where}: expected 'timestamp tx ty tz qx qy qz qw', got {len(parts)} fields")
+        vals = finite_floats(parts, where, line)
+        check_quaternion(vals[4:8], where)
+        check_increasing(stamps, vals[0], where, parts[0])
         stamps.append(vals[0])
         rows.append(vals[1:])
     if not rows:

@@ -170,7 +170,7 @@ def list_timestamp_nan(tmp_path):
     lines = (root / "rgb.txt").read_text().splitlines()
     lines[1] = "nan " + lines[1].split()[1]
     (root / "rgb.txt").write_text("\n".join(lines) + "\n")
-    return root, ["rgb.txt:2", "not finite"]
+    return root, ["rgb.txt:2", "non-finite"]
 
 
 def rgb_txt_binary(tmp_path):
