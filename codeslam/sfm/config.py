@@ -8,6 +8,7 @@ from dataclasses import asdict, dataclass, fields
 from codeslam.errors import ConfigError
 
 GRADIENT_MODES = ("sobel", "interpolant")
+GEOMETRIC_SPACES = ("log_depth", "proximity")
 
 
 @dataclass(frozen=True)
@@ -27,10 +28,16 @@ class SfMConfig:
     """Estimate a per-pair affine brightness (log-gain, bias): the paper's exposure correction (Sec. 5.2)."""
     sigma_photometric: float = 0.05
     """Photometric noise (grey levels in [0, 1]); relative weighting (ii) against ``sigma_geometric``."""
-    sigma_geometric: float = 0.02
-    """Geometric noise in proximity units (p = a / (d + a)); relative weighting (ii)."""
+    geometric_space: str = "log_depth"
+    """Space of the geometric residual f(z) - f(D_B[v]): 'log_depth' (scale-free: scaling every depth and
+    translation together leaves it unchanged, as it leaves the photometric term) or 'proximity' (the decoder's
+    output; beyond the average depth a it shrinks as depths grow, so it pulls the scale up)."""
+    sigma_geometric: float = 0.08
+    """Geometric noise in the units of ``geometric_space``: 0.08 in log depth (8% relative depth error) is what
+    0.02 in proximity is at the average depth; relative weighting (ii)."""
     use_uncertainty: bool = False
-    """Add the network's Laplace scales b of both views to the geometric noise: sigma^2 + 2 b_A^2 + 2 b_B^2."""
+    """Add the network's Laplace scales b of both views to the geometric noise: sigma^2 + 2 b_A^2 + 2 b_B^2 (b
+    carried into log depth at first order when ``geometric_space`` is 'log_depth')."""
     huber_photometric: float = 1.345
     """Huber threshold in sigmas (loss (iii)); 1.345 keeps 95% efficiency for Gaussian noise."""
     huber_geometric: float = 1.345
@@ -90,6 +97,9 @@ class SfMConfig:
                 raise ConfigError(f"SfM config: {name} must be positive, got {getattr(self, name)}")
         if not 0 < self.damping_decrease < 1 < self.damping_increase:
             raise ConfigError("SfM config: need 0 < damping_decrease < 1 < damping_increase")
+        if self.geometric_space not in GEOMETRIC_SPACES:
+            raise ConfigError(f"SfM config: geometric_space must be one of {GEOMETRIC_SPACES}, "
+                              f"got {self.geometric_space!r}")
         if self.gradient_mode not in GRADIENT_MODES:
             raise ConfigError(f"SfM config: gradient_mode must be one of {GRADIENT_MODES}, got {self.gradient_mode!r}")
         if len(self.pyramid_levels) != len(self.max_iterations) or not self.pyramid_levels:

@@ -4,10 +4,13 @@ Jacobians, vectorised over pixels and batched over pairs.
 For a pair (A, B) and every pixel u of A, with ``v = w(u, c_A, T_BA)`` and ``x`` the point in B (Sec. 3):
 
 * photometric (Eq. 13 with the per-pair affine brightness of Sec. 5.2): ``r_pho = I_A[u] - (exp(a) I_B[v] + b)``;
-* geometric (Eq. 14): ``r_geo = prox_B(x_z) - P_B[v]``, the proximity of the warped point's depth in B against
-  B's decoded proximity ``P_B = prox0_B + J_B c_B`` at v. Proximity rather than depth: it is what the decoder
-  outputs (so ``P_B[v]`` is exactly linear in c_B and the network's uncertainty b is in its units), it is bounded,
-  and beyond the average depth it behaves like inverse depth, whose error is what stereo observes (Sec. 2.2).
+* geometric (Eq. 14): ``r_geo = f(x_z) - f(D_B[v])``, the depth of the warped point in B against B's decoded
+  depth at v, both mapped by ``f`` (``SfMConfig.geometric_space``): ``f = log`` by default, or ``f = prox``
+  (p = a / (d + a)). The paper writes the plain depth difference; any such difference changes when every depth
+  and translation is scaled together, which the photometric term cannot see, so the geometric term alone would
+  pull the scene's scale -- towards zero for depth, towards larger depths beyond ``a`` for proximity -- and only
+  the code prior would hold it. The log-depth difference is the one scale-free choice: the scale stays where the
+  network's prior puts it. Measured on TUM fr1_rpy (see SfMConfig.geometric_space).
 
 Loss functions (Sec. 4.1): (i) invalid correspondences (outside B with ``border``, behind B, invalid depth of A,
 and for the geometric term a lookup touching a hole of B's proximity) are masked and priced at the Huber
@@ -51,7 +54,8 @@ class PairEvaluation:
     r, valid, sigma, fixed_weight: (P, T, N); huber: (T,) thresholds in sigmas. The rest (P, N, ...) are the
     warp's intermediates: T_BA (P, 4, 4), x_B (P, N, 3), ray_A (P, N, 3), dd_dprox_A (P, N) = d D_A / d P_A at u,
     gain (P, 1) = exp(a), gray_B (P, N) = I_B[v], grad_gray_B / grad_prox_B (P, N, 2) (None unless requested),
-    dprox_dz (P, N) = d prox_B(x_z) / d x_z, v (P, N, 2).
+    dgeo_dz (P, N) = d f(x_z) / d x_z, dgeo_dprox_B (P, N) = d f(D_B(P_B)) / d P_B at v (f: the geometric
+    residual's space), v (P, N, 2).
     """
 
     types: tuple[str, ...]
@@ -68,7 +72,8 @@ class PairEvaluation:
     gray_B: torch.Tensor
     grad_gray_B: torch.Tensor | None
     grad_prox_B: torch.Tensor | None
-    dprox_dz: torch.Tensor
+    dgeo_dz: torch.Tensor
+    dgeo_dprox_B: torch.Tensor
     v: torch.Tensor
 
 
@@ -221,8 +226,17 @@ def evaluate_pairs(
     gain = torch.exp(log_gain)  # (P, 1)
     a_B = a[iB][:, None]  # (P, 1)
     z_safe = torch.where(valid, z, torch.ones_like(z))
-    prox_x = depth_to_prox(z_safe, a_B)  # proximity of the warped point's depth in B (Eq. 4)
-    depth_B_at_v = prox_to_depth(prox_B, a_B).detach()
+    depth_B = prox_to_depth(prox_B, a_B)  # B's decoded depth at v (0 where B has no depth)
+    depth_B_at_v = depth_B.detach()
+    if cfg.geometric_space == "log_depth":
+        depth_B_safe = torch.where(depth_B_at_v > 0, depth_B, torch.ones_like(depth_B))
+        geo_x, geo_B = torch.log(z_safe), torch.log(depth_B_safe)
+        dgeo_dz = 1.0 / z_safe
+        dgeo_dprox_B = d_depth_d_prox(prox_B, a_B) / depth_B_safe  # d log D / d P = (dD/dP) / D
+    else:
+        geo_x, geo_B = depth_to_prox(z_safe, a_B), prox_B  # proximity of the warped point's depth (Eq. 4)
+        dgeo_dz = d_prox_d_depth(z_safe, a_B)
+        dgeo_dprox_B = torch.ones_like(prox_B)
 
     rs, sigmas, fixed, valids, hubers = [], [], [], [], []
     w_slant = slant_weight(depth.detach(), level.params, cfg.slant_cos_min)[iA].reshape(P, -1)  # (iv)
@@ -237,11 +251,17 @@ def evaluate_pairs(
             valids.append(valid)
             hubers.append(cfg.huber_photometric)
         else:
-            r = prox_x - prox_B  # Eq. 14, compared in proximity
+            r = geo_x - geo_B  # Eq. 14 in the space f (log depth or proximity)
             sig2 = cfg.sigma_geometric**2 * ones
-            if cfg.use_uncertainty and level.uncertainty is not None:  # Laplace b: variance 2 b^2 per view
+            if cfg.use_uncertainty and level.uncertainty is not None:
+                # Laplace b (proximity units): variance 2 b^2 per view, carried into f's units at first order.
                 b_A = level.uncertainty[iA].reshape(P, -1)
-                sig2 = sig2 + 2.0 * b_A**2 + 2.0 * sampled[:, -1] ** 2
+                b_B = sampled[:, -1]
+                if cfg.geometric_space == "log_depth":
+                    d_A_safe = torch.where(d_A > 0, d_A, torch.ones_like(d_A))
+                    b_A = b_A * d_depth_d_prox(prox_A, a[iA][:, None]).abs() / d_A_safe
+                    b_B = b_B * dgeo_dprox_B.abs()
+                sig2 = sig2 + 2.0 * b_A**2 + 2.0 * b_B**2
             sigmas.append(sig2.sqrt().detach())
             occ_w = w_slant
             if cfg.occlusion_geometric:
@@ -267,7 +287,8 @@ def evaluate_pairs(
         gray_B=gray_B,
         grad_gray_B=grad_gray_B,
         grad_prox_B=grad_prox_B,
-        dprox_dz=d_prox_d_depth(z_safe, a_B),
+        dgeo_dz=dgeo_dz,
+        dgeo_dprox_B=dgeo_dprox_B,
         v=v_safe,
     )
 
@@ -302,10 +323,11 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
             J_aff.append(torch.stack([-ev.gain * ev.gray_B, -torch.ones_like(zeros)], dim=-1))  # d/d(a, b)
             s_B.append(zeros)
         else:
-            # d/dx [prox_B(x_z) - P_B[pi(x)]] = dprox/dz e_z - dP_B/dv dpi/dx
-            dr_dx = ev.dprox_dz[..., None] * e_z - (ev.grad_prox_B.unsqueeze(-1) * dpi).sum(-2)
+            # d/dx [f(x_z) - f(D_B(P_B[pi(x)]))] = df/dz e_z - df/dP dP_B/dv dpi/dx
+            dr_dx = ev.dgeo_dz[..., None] * e_z - ev.dgeo_dprox_B[..., None] * (
+                ev.grad_prox_B.unsqueeze(-1) * dpi).sum(-2)
             J_aff.append(torch.zeros(P, N, 2, dtype=dtype, device=ev.r.device))
-            s_B.append(-torch.ones_like(zeros))  # d r_geo / d c_B = -J_B[v]
+            s_B.append(-ev.dgeo_dprox_B)  # d r_geo / d c_B = -df/dP J_B[v]
         J_rel.append(pose_row(dr_dx, ev.x_B, ev.T_BA))  # Eqs. 7-8 in SE(3) left form, (P, N, 6)
         s_A.append((dr_dx * dx_dd).sum(-1) * ev.dd_dprox_A)  # Eq. 9 with dD_A/dc_A = dD/dP J_A[u]
     valid = ev.valid

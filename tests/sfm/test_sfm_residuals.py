@@ -75,7 +75,8 @@ def _layout(fixed=()):
     return VariableLayout.for_sfm(3, 5, 4, True, fixed=fixed)
 
 
-@pytest.mark.parametrize("types", [dict(), dict(geometric=False), dict(photometric=False)])
+@pytest.mark.parametrize("types", [dict(), dict(geometric=False), dict(photometric=False),
+                                   dict(photometric=False, geometric_space="proximity")])
 def test_compact_jacobians_match_autograd_for_every_block(problem, types):
     level, state = problem
     cfg = SfMConfig(gradient_mode="interpolant", **types)
@@ -189,10 +190,55 @@ def test_uncertainty_widens_the_geometric_sigma(problem):
     level, state = problem
     b = torch.full_like(level.prox0, 0.03)
     lv = type(level)(**{**level.__dict__, "uncertainty": b})
-    ev = evaluate_pairs(lv, PAIRS, state.poses, state.codes, state.affine, SfMConfig(use_uncertainty=True))
+    cfg = SfMConfig(use_uncertainty=True, geometric_space="proximity", sigma_geometric=0.02)
+    ev = evaluate_pairs(lv, PAIRS, state.poses, state.codes, state.affine, cfg)
     t = 1  # geometric
     expected = torch.tensor((0.02**2 + 4 * 0.03**2) ** 0.5, dtype=D)
     torch.testing.assert_close(ev.sigma[:, t][ev.valid[:, t]], expected.expand(int(ev.valid[:, t].sum())))
+
+
+def test_uncertainty_is_carried_into_log_depth_at_first_order(problem):
+    """In log depth a proximity scale b becomes b |d log D / d P| = b / (P (1 - P)) (from D = a (1 - P) / P)."""
+    from codeslam.sfm.residuals import bilinear_sample as lookup
+
+    level, state = problem
+    b = torch.full_like(level.prox0, 0.03)
+    lv = type(level)(**{**level.__dict__, "uncertainty": b})
+    cfg = SfMConfig(use_uncertainty=True, sigma_geometric=0.08)
+    ev = evaluate_pairs(lv, PAIRS, state.poses, state.codes, state.affine, cfg)
+    prox = lv.prox(state.codes)  # (F, 1, H, W)
+    P_A = prox[PAIRS[:, 0]].reshape(len(PAIRS), -1)
+    P_B, _ = lookup(prox[PAIRS[:, 1]], ev.v)
+    P_B = P_B[:, 0]
+    expected = (0.08**2 + 2 * (0.03 / (P_A * (1 - P_A))) ** 2 + 2 * (0.03 / (P_B * (1 - P_B))) ** 2).sqrt()
+    ok = ev.valid[:, 1]
+    torch.testing.assert_close(ev.sigma[:, 1][ok], expected[ok])
+
+
+def test_log_depth_geometric_residual_ignores_a_common_scale():
+    """Scaling every depth and translation by s leaves the log-depth geometric residual unchanged (the scale is
+    not the geometric term's to choose); the proximity residual changes."""
+    gt = [look_pose(), look_pose((0.15, 0.0, 0.05), (0.0, -0.03, 0.0))]
+    kfs, codes, poses = make_frames(gt, width=48, height=36, code_size=4, levels=1, panel=False)
+    level = build_levels(kfs, [0])[0]
+    a = level.avg_depth[:, None, None, None]
+    s = 1.7
+    depth = a * (1 - level.prox0) / level.prox0
+    scaled = type(level)(**{**level.__dict__, "prox0": a / (s * depth + a)})
+    scaled_poses = poses.clone()
+    scaled_poses[:, :3, 3] *= s
+    pair = torch.tensor([[0, 1]])
+    change = {}
+    for space in ("log_depth", "proximity"):
+        cfg = SfMConfig(photometric=False, geometric_space=space)
+        r0 = evaluate_pairs(level, pair, poses, codes * 0, None, cfg)
+        r1 = evaluate_pairs(scaled, pair, scaled_poses, codes * 0, None, cfg)
+        assert torch.equal(r0.valid, r1.valid)
+        # Relative to the residual's own spread; B's depth is looked up in proximity, so log depth is scale-free
+        # only up to the curvature of that bilinear lookup.
+        change[space] = float((r0.r - r1.r).abs().mean() / r0.r.abs().mean())
+    assert change["log_depth"] < 0.01
+    assert change["proximity"] > 0.1
 
 
 def test_code_blocks_of_a_pair_touch_only_its_frames(problem):
