@@ -36,18 +36,12 @@ PAIR_MODES = ("master", "all")
 
 
 def _load_sfm_config(path: Path | None):
-    import yaml
-
+    from codeslam.configfile import read_yaml
     from codeslam.sfm import SfMConfig
 
     if path is None:
         return SfMConfig()
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"SfM config file not found: {path}") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise ConfigError(f"cannot read SfM config {path}: {' '.join(str(e).split())}") from None
+    data = read_yaml(path)
     if isinstance(data, dict) and set(data) == {"sfm"}:
         data = data["sfm"]
     return SfMConfig.from_dict(data or {})

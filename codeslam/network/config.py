@@ -16,22 +16,20 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from codeslam.configfile import from_mapping, read_yaml
 from codeslam.errors import ConfigError
 
 #: number of down-sampling stages of every branch; image sizes must be multiples of 2 ** this
 NUM_SCALES = 4
 #: largest magnitude of an integer option (a YAML integer can be arbitrarily large; torch needs int64 and
 #: no option of a network that fits in memory comes near this)
-MAX_CONFIG_INT = 2**31 - 1
-#: number of pyramid levels on which mu and b are predicted and the loss is evaluated (paper Sec. 2.1)
 NUM_LEVELS = 4
 
 
@@ -104,7 +102,7 @@ class NetworkConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> NetworkConfig:
-        return _from_dict(cls, d, "network")
+        return from_mapping(cls, d, "network")
 
 
 @dataclass(frozen=True)
@@ -189,7 +187,7 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
-        return _from_dict(cls, d, "train")
+        return from_mapping(cls, d, "train")
 
 
 @dataclass(frozen=True)
@@ -203,52 +201,11 @@ class RunConfig:
         return {"network": self.network.to_dict(), "train": self.train.to_dict()}
 
 
-def _check_type(name: str, value: Any, default: Any) -> Any:
-    """Coerce a YAML value to the type of the field's default, or raise ConfigError."""
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(f"{name} must be true or false, got {value!r}")
-        return value
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{name} must be an integer, got {value!r}")
-        if abs(value) > MAX_CONFIG_INT:
-            raise ConfigError(f"{name} is out of range: {value}")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ConfigError(f"{name} must be a finite number, got {value!r}")
-        return float(value)
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise ConfigError(f"{name} must be a string, got {value!r}")
-        return value
-    if isinstance(default, tuple):
-        if not isinstance(value, (list, tuple)) or not all(
-            isinstance(v, int) and not isinstance(v, bool) and abs(v) <= MAX_CONFIG_INT for v in value
-        ):
-            raise ConfigError(f"{name} must be a list of integers, got {value!r}")
-        return tuple(value)
-    raise AssertionError(f"unhandled config field type for {name}")  # a bug in this module
-
-
-def _from_dict(cls, d: dict[str, Any], section: str):
-    if not isinstance(d, dict):
-        raise ConfigError(f"config section '{section}' must be a mapping, got {type(d).__name__}")
-    defaults = cls()
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(d) - known)
-    if unknown:
-        raise ConfigError(f"unknown {section} option(s): {', '.join(unknown)} (known: {', '.join(sorted(known))})")
-    kwargs = {k: _check_type(f"{section}.{k}", v, getattr(defaults, k)) for k, v in d.items()}
-    return cls(**kwargs)
-
-
 def overlay(base, updates: dict[str, Any]):
     """``base`` (a NetworkConfig or TrainConfig) with the fields in ``updates`` replaced (validated)."""
     section = "network" if isinstance(base, NetworkConfig) else "train"
     merged = {**base.to_dict(), **updates}
-    return _from_dict(type(base), merged, section)
+    return from_mapping(type(base), merged, section)
 
 
 def load_run_config(path: str | os.PathLike | None, base: RunConfig | None = None) -> RunConfig:
@@ -258,13 +215,7 @@ def load_run_config(path: str | os.PathLike | None, base: RunConfig | None = Non
     if path is None:
         return base
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"config file not found: {path}") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        msg = " ".join(str(e).split())
-        raise ConfigError(f"cannot read config file {path}: {msg}") from None
+    data = read_yaml(path)
     if data is None:
         return base
     if not isinstance(data, dict):

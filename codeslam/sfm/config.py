@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass
 
+from codeslam.configfile import from_mapping
 from codeslam.errors import ConfigError
 
 GRADIENT_MODES = ("sobel", "interpolant")
@@ -127,44 +127,5 @@ class SfMConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> SfMConfig:
-        """From a (YAML) mapping of a subset of the fields; unknown keys raise ConfigError, lists become tuples."""
-        if not isinstance(d, dict):
-            raise ConfigError(f"SfM config must be a mapping, got {type(d).__name__}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"unknown SfM option(s): {', '.join(unknown)} (known: {', '.join(sorted(known))})")
-        defaults = cls()
-        return cls(**{k: _checked(k, v, getattr(defaults, k)) for k, v in d.items()})
-
-
-def _checked(name: str, value, default):
-    """A (YAML) value of the type of the field's default -- bools, integers, finite numbers, strings, tuples of
-    integers or of numbers -- or ConfigError naming the field."""
-
-    def is_int(v) -> bool:
-        return isinstance(v, int) and not isinstance(v, bool)
-
-    def is_number(v) -> bool:
-        return (isinstance(v, float) or is_int(v)) and math.isfinite(v)
-
-    if isinstance(default, bool):
-        ok = isinstance(value, bool)
-        kind = "true or false"
-    elif isinstance(default, int):
-        ok = is_int(value)
-        kind = "an integer"
-    elif isinstance(default, float):
-        ok = is_number(value)
-        kind = "a finite number"
-    elif isinstance(default, str):
-        ok = isinstance(value, str)
-        kind = "a string"
-    else:  # a tuple
-        elem = is_int if all(is_int(v) for v in default) else is_number
-        ok = isinstance(value, (list, tuple)) and all(elem(v) for v in value)
-        kind = "a list of integers" if elem is is_int else "a list of numbers"
-        value = tuple(value) if ok else value
-    if not ok:
-        raise ConfigError(f"SfM config: {name} must be {kind}, got {value!r}")
-    return float(value) if isinstance(default, float) else value
+        """From a (YAML) mapping of a subset of the fields; unknown keys or mistyped values raise ConfigError."""
+        return from_mapping(cls, d, "sfm")

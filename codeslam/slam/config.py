@@ -19,6 +19,7 @@ from typing import Any
 
 import yaml
 
+from codeslam.configfile import coerce, read_yaml
 from codeslam.errors import ConfigError
 from codeslam.sfm.config import SfMConfig
 
@@ -189,31 +190,6 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
-def _coerce(name: str, value: Any, default: Any) -> Any:
-    """A YAML value converted to the type of the field's default, or ConfigError."""
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise ConfigError(f"{name} must be true or false, got {value!r}")
-        return value
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{name} must be an integer, got {value!r}")
-        return value
-    if isinstance(default, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{name} must be a number, got {value!r}")
-        return float(value)
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise ConfigError(f"{name} must be a string, got {value!r}")
-        return value
-    if isinstance(default, tuple):
-        if not isinstance(value, (list, tuple)) or any(isinstance(v, bool) or not isinstance(v, int) for v in value):
-            raise ConfigError(f"{name} must be a list of integers, got {value!r}")
-        return tuple(value)
-    raise AssertionError(f"unhandled config field type for {name}")  # a bug in this module
-
-
 def _overlay(base: Any, updates: Any, section: str) -> Any:
     """``base`` (one of the config dataclasses) with the keys of ``updates`` replaced, recursively."""
     if isinstance(base, SfMConfig):
@@ -234,7 +210,7 @@ def _overlay(base: Any, updates: Any, section: str) -> Any:
         if hasattr(current, "__dataclass_fields__"):
             changes[k] = _overlay(current, v if v is not None else {}, name)
         else:
-            changes[k] = _coerce(name, v, current)
+            changes[k] = coerce(name, v, current)
     try:
         return replace(base, **changes)
     except TypeError as e:
@@ -252,12 +228,7 @@ def load_config(path: str | os.PathLike | None = None, base: SLAMConfig | None =
     if path is None:
         return base
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ConfigError(f"config file not found: {path}") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise ConfigError(f"cannot read config file {path}: {' '.join(str(e).split())}") from None
+    data = read_yaml(path)
     if data is None:
         return base
     if not isinstance(data, dict):

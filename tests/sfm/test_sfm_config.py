@@ -31,7 +31,7 @@ def test_nonsense_is_refused(bad):
 
 
 def test_unknown_keys_and_wrong_types_are_config_errors():
-    with pytest.raises(ConfigError, match="unknown SfM option"):
+    with pytest.raises(ConfigError, match="unknown sfm option"):
         SfMConfig.from_dict({"sigma_photo": 0.1})
     with pytest.raises(ConfigError):
         SfMConfig.from_dict({"sigma_photometric": "big"})
