@@ -4,6 +4,7 @@ so an interrupted run leaves either the previous complete file or none (never a 
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import tempfile
@@ -57,8 +58,18 @@ def _temp_beside(path: Path, suffix: str) -> tuple[int, str]:
         raise OutputError(f"cannot write {path}: {e.strerror or e}") from None
 
 
+@functools.cache
+def _umask() -> int:
+    """The process umask, read once (the only portable way to read it is to set it and put it back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def _commit(tmp: str | Path, path: Path) -> None:
     try:
+        # mkstemp creates 0600 files; a result gets the permissions of any newly created file (0666 & ~umask).
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except OSError as e:
         raise OutputError(f"cannot write {path}: {e.strerror or e}") from None

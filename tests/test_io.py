@@ -27,3 +27,18 @@ def test_atomic_path_failure_leaves_nothing(tmp_path):
             tmp.write_bytes(b"partial")
             raise ValueError
     assert not any(tmp_path.iterdir())
+
+
+def test_results_get_the_permissions_of_a_newly_created_file(tmp_path):
+    """mkstemp makes 0600 temporaries; the renamed result must be readable like any file the user creates."""
+    import os
+
+    from codeslam.io import _umask
+
+    atomic = tmp_path / "atomic.txt"
+    with atomic_write(atomic) as f:
+        f.write("x")
+    plain = tmp_path / "plain.txt"
+    plain.write_text("x")
+    assert (atomic.stat().st_mode & 0o777) == (plain.stat().st_mode & 0o777) == 0o666 & ~_umask()
+    assert os.access(atomic, os.R_OK)
