@@ -31,7 +31,6 @@ Choices (documented here because the benchmark leaves them to the user):
 
 from __future__ import annotations
 
-import math
 import re
 import warnings
 from pathlib import Path
@@ -100,18 +99,13 @@ def read_list_file(path: Path, root: Path) -> tuple[np.ndarray, list[Path]]:
 
 def read_calib_txt(path: Path, width: int, height: int) -> PinholeCamera:
     """``fx fy cx cy [k1 k2 p1 p2 [k3]]`` on the first non-comment line -> camera of ``width`` x ``height``."""
-    lines = [line for _, line in data_lines(path)]
-    if not lines:
+    where, line = next(data_lines(path), (None, None))
+    if line is None:
         raise DatasetError(f"{path} is empty; expected 'fx fy cx cy [k1 k2 p1 p2 k3]'")
-    parts = lines[0].replace(",", " ").split()
+    parts = line.replace(",", " ").split()
     if len(parts) not in (4, 8, 9):
-        raise DatasetError(f"{path}: expected 4, 8 or 9 numbers 'fx fy cx cy [k1 k2 p1 p2 [k3]]', got {len(parts)}")
-    try:
-        vals = [float(p) for p in parts]
-    except ValueError:
-        raise DatasetError(f"{path}: not a number in {lines[0]!r}") from None
-    if not all(math.isfinite(v) for v in vals):
-        raise DatasetError(f"{path}: non-finite value in {lines[0]!r}")
+        raise DatasetError(f"{where}: expected 4, 8 or 9 numbers 'fx fy cx cy [k1 k2 p1 p2 [k3]]', got {len(parts)}")
+    vals = finite_floats(parts, where, line)
     dist = tuple(vals[4:]) + (0.0,) * (9 - len(vals)) if len(vals) > 4 else (0.0,) * 5
     try:
         return PinholeCamera(vals[0], vals[1], vals[2], vals[3], width, height, dist)
