@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import abc
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +54,24 @@ class Sequence(abc.ABC):
     def gt_poses(self) -> torch.Tensor | None:
         """(N, 4, 4) float64 ground-truth ``T_wc`` at the frame timestamps, or None."""
         return self._gt
+
+    def _read_gt(
+        self, path: Path, read, stamps: np.ndarray, max_gap: float, what: str = "frame"
+    ) -> torch.Tensor | None:
+        """Ground truth from the trajectory file ``path`` (parsed by ``read``: path -> Trajectory) interpolated at
+        ``stamps``: (N, 4, 4) float64 with NaN rows where no pose is within ``max_gap`` seconds; sets ``gt_path``.
+        None when the file does not exist, or (with a warning) when it covers none of the timestamps."""
+        from codeslam.eval.association import interpolate_poses
+
+        self.gt_path: Path | None = None
+        if not path.is_file():
+            return None
+        poses, valid = interpolate_poses(read(path), stamps, max_gap)
+        if not bool(valid.any()):
+            warnings.warn(f"{path} covers none of the {what} timestamps; no poses", stacklevel=3)
+            return None
+        self.gt_path = path
+        return poses
 
     def __len__(self) -> int:
         return len(self._stamps)

@@ -18,7 +18,6 @@ coefficients are ignored).
 
 from __future__ import annotations
 
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -38,7 +37,6 @@ from codeslam.data.imageio import (
 )
 from codeslam.data.textfile import check_increasing, data_lines
 from codeslam.errors import CodeSLAMError, DatasetError
-from codeslam.eval.association import interpolate_poses
 from codeslam.eval.euroc_csv import NS_PER_S, read_euroc_csv
 from codeslam.geometry.camera import PinholeCamera
 
@@ -164,16 +162,9 @@ class EurocSequence(Sequence):
         self.undistort = undistort and camera.has_distortion
         self._camera = camera.without_distortion()
 
-        self._gt: torch.Tensor | None = None
-        self.gt_path: Path | None = None
-        gt_csv = mav / "state_groundtruth_estimate0" / "data.csv"
-        if gt_csv.is_file():
-            T_wb, valid = interpolate_poses(read_euroc_csv(gt_csv), self._stamps, gt_max_gap)  # (N, 4, 4)
-            if not bool(valid.any()):
-                warnings.warn(f"{gt_csv} covers none of the image timestamps; no poses", stacklevel=2)
-            else:
-                self._gt = T_wb @ self.T_BS  # T_wc = T_wb T_bc (NaN rows stay NaN)
-                self.gt_path = gt_csv
+        T_wb = self._read_gt(mav / "state_groundtruth_estimate0" / "data.csv", read_euroc_csv, self._stamps,
+                             gt_max_gap, "image")  # (N, 4, 4)
+        self._gt = None if T_wb is None else T_wb @ self.T_BS  # T_wc = T_wb T_bc (NaN rows stay NaN)
 
     @staticmethod
     def detect(root: Path) -> bool:

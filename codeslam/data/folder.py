@@ -31,7 +31,6 @@ A frame outside its span, or between two poses more than ``pose_max_gap`` apart,
 from __future__ import annotations
 
 import math
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -50,7 +49,6 @@ from codeslam.data.imageio import (
     undistort_frame,
 )
 from codeslam.errors import CodeSLAMError, ConfigError, DatasetError
-from codeslam.eval.association import interpolate_poses
 from codeslam.eval.trajectory import read_tum
 from codeslam.geometry.camera import PinholeCamera
 
@@ -191,16 +189,7 @@ class FolderSequence(Sequence):
                 depths.append(found[0])
             self._depths = depths
 
-        self._gt: torch.Tensor | None = None
-        self.gt_path: Path | None = None
-        poses_file = root / POSES_FILE
-        if poses_file.is_file():
-            poses, valid = interpolate_poses(read_tum(poses_file), stamps, pose_max_gap)
-            if not bool(valid.any()):
-                warnings.warn(f"{poses_file} covers none of the frame timestamps; no poses", stacklevel=2)
-            else:
-                self._gt = poses
-                self.gt_path = poses_file
+        self._gt = self._read_gt(root / POSES_FILE, read_tum, stamps, pose_max_gap)
 
     @staticmethod
     def detect(root: Path) -> bool:

@@ -52,7 +52,7 @@ from codeslam.data.imageio import (
 )
 from codeslam.data.textfile import check_increasing, data_lines, finite_floats
 from codeslam.errors import CodeSLAMError, DatasetError
-from codeslam.eval.association import associate, interpolate_poses
+from codeslam.eval.association import associate
 from codeslam.eval.trajectory import read_tum
 from codeslam.geometry.camera import PinholeCamera
 
@@ -194,16 +194,7 @@ class TumSequence(Sequence):
         self._camera = camera.without_distortion()
 
         # Ground truth at the colour timestamps.
-        self._gt: torch.Tensor | None = None
-        self.gt_path: Path | None = None
-        gt_txt = root / "groundtruth.txt"
-        if gt_txt.is_file():
-            poses, valid = interpolate_poses(read_tum(gt_txt), stamps, gt_max_gap)
-            if not bool(valid.any()):
-                warnings.warn(f"{gt_txt} covers none of the image timestamps; no poses", stacklevel=2)
-            else:
-                self._gt = poses
-                self.gt_path = gt_txt
+        self._gt = self._read_gt(root / "groundtruth.txt", read_tum, stamps, gt_max_gap, "image")
 
     @staticmethod
     def detect(root: Path) -> bool:
