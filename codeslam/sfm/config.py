@@ -34,7 +34,8 @@ class SfMConfig:
     output; beyond the average depth a it shrinks as depths grow, so it pulls the scale up)."""
     sigma_geometric: float = 0.08
     """Geometric noise in the units of ``geometric_space``: 0.08 in log depth (8% relative depth error) is what
-    0.02 in proximity is at the average depth; relative weighting (ii)."""
+    0.02 in proximity is at the average depth (set 0.02 with ``geometric_space: proximity``); relative weighting
+    (ii)."""
     use_uncertainty: bool = False
     """Add the network's Laplace scales b of both views to the geometric noise: sigma^2 + 2 b_A^2 + 2 b_B^2 (b
     carried into log depth at first order when ``geometric_space`` is 'log_depth')."""

@@ -10,7 +10,8 @@ For a pair (A, B) and every pixel u of A, with ``v = w(u, c_A, T_BA)`` and ``x``
   and translation is scaled together, which the photometric term cannot see, so the geometric term alone would
   pull the scene's scale -- towards zero for depth, towards larger depths beyond ``a`` for proximity -- and only
   the code prior would hold it. The log-depth difference is the one scale-free choice: the scale stays where the
-  network's prior puts it. Measured on TUM fr1_rpy (see SfMConfig.geometric_space).
+  network's prior puts it. Measured when it became the default: equal on generator rooms, better on 3 of 4
+  HoloLens masters, demo SLAM ATE 0.026 -> 0.022 m (Sim(3) scale 1.14 -> 1.10).
 
 Loss functions (Sec. 4.1): (i) invalid correspondences (outside B with ``border``, behind B, invalid depth of A,
 and for the geometric term a lookup touching a hole of B's proximity) are masked and priced at the Huber
