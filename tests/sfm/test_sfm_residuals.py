@@ -199,8 +199,6 @@ def test_uncertainty_widens_the_geometric_sigma(problem):
 
 def test_uncertainty_is_carried_into_log_depth_at_first_order(problem):
     """In log depth a proximity scale b becomes b |d log D / d P| = b / (P (1 - P)) (from D = a (1 - P) / P)."""
-    from codeslam.sfm.residuals import bilinear_sample as lookup
-
     level, state = problem
     b = torch.full_like(level.prox0, 0.03)
     lv = type(level)(**{**level.__dict__, "uncertainty": b})
@@ -208,7 +206,7 @@ def test_uncertainty_is_carried_into_log_depth_at_first_order(problem):
     ev = evaluate_pairs(lv, PAIRS, state.poses, state.codes, state.affine, cfg)
     prox = lv.prox(state.codes)  # (F, 1, H, W)
     P_A = prox[PAIRS[:, 0]].reshape(len(PAIRS), -1)
-    P_B, _ = lookup(prox[PAIRS[:, 1]], ev.v)
+    P_B, _ = bilinear_sample(prox[PAIRS[:, 1]], ev.v)
     P_B = P_B[:, 0]
     expected = (0.08**2 + 2 * (0.03 / (P_A * (1 - P_A))) ** 2 + 2 * (0.03 / (P_B * (1 - P_B))) ** 2).sqrt()
     ok = ev.valid[:, 1]
