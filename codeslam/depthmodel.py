@@ -26,7 +26,7 @@ from codeslam.data.frame import Frame
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.proximity import depth_to_prox, prox_to_depth
-from codeslam.geometry.resample import resample_depth, resample_image
+from codeslam.geometry.resample import resample_depth, resample_image, resample_validity
 from codeslam.network.jacobian import code_jacobian
 from codeslam.network.model import CodeNetwork, to_network_image
 from codeslam.recon.metrics import DepthErrors
@@ -55,6 +55,7 @@ class CanonicalFrame:
         image: (3, H, W) RGB in [0, 1] (0 where the canonical ray leaves the source image).
         depth: (H, W) metres, 0 = invalid (nearest-neighbour resampled), or None without ground-truth depth.
         pose: (4, 4) float64 T_wc or None. timestamp: seconds. index: position in its sequence.
+        valid: (H, W) bool, where ``image`` was computed from real source pixels only (None: everywhere).
     """
 
     image: torch.Tensor
@@ -62,6 +63,7 @@ class CanonicalFrame:
     pose: torch.Tensor | None
     timestamp: float
     index: int
+    valid: torch.Tensor | None = None
 
 
 def fit_code_linear(
@@ -137,7 +139,8 @@ class DepthModel:
         depth = None
         if frame.depth is not None:
             depth = resample_depth(frame.depth[None, None].float(), frame.camera, cam)[0, 0]  # (H, W)
-        return CanonicalFrame(image.clamp(0, 1), depth, frame.pose, float(frame.timestamp), int(frame.index))
+        valid = resample_validity(frame.valid, frame.camera, cam)
+        return CanonicalFrame(image.clamp(0, 1), depth, frame.pose, float(frame.timestamp), int(frame.index), valid)
 
     def target_prox(self, depth: torch.Tensor) -> torch.Tensor:
         """Depth (...) -> proximity (...) with the network's a; 0 where the depth is invalid."""
@@ -226,7 +229,8 @@ class DepthModel:
         :func:`codeslam.sfm.sfm` and the SLAM system optimise."""
         feats = self.features(frame.image[None])
         decoder = self.linear_decoders(feats)[0]
-        return Keyframe(frame.image.to(self.device), self.camera, decoder)
+        valid = None if frame.valid is None else frame.valid.to(self.device)
+        return Keyframe(frame.image.to(self.device), self.camera, decoder, valid)
 
 
 @dataclass

@@ -181,9 +181,10 @@ class EurocSequence(Sequence):
         i = frame_index(i, len(self))
         image = read_rgb(self._files[i])
         check_frame_shapes(self.source_camera, image, None, self._files[i])
+        valid = None
         if self.undistort:
-            image, _ = undistort_frame(self.source_camera, image, None)
+            image, _, valid = undistort_frame(self.source_camera, image, None)
         pose = None
         if self._gt is not None and not bool(torch.isnan(self._gt[i]).any()):
             pose = self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, None, pose, i)
+        return Frame(float(self._stamps[i]), image, self._camera, None, pose, i, valid)

@@ -210,9 +210,10 @@ class FolderSequence(Sequence):
             else:
                 depth = read_depth_png(depth_path, self.depth_factor)
         check_frame_shapes(self.source_camera, image, depth, self._images[i], depth_path)
+        valid = None
         if self.undistort:
-            image, depth = undistort_frame(self.source_camera, image, depth)
+            image, depth, valid = undistort_frame(self.source_camera, image, depth)
         pose = None
         if self._gt is not None and not bool(torch.isnan(self._gt[i]).any()):
             pose = self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, depth, pose, i)
+        return Frame(float(self._stamps[i]), image, self._camera, depth, pose, i, valid)

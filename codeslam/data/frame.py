@@ -20,6 +20,8 @@ class Frame:
         depth: (H, W) float32 z-depth in metres, 0 where invalid; ``None`` when the dataset has no depth.
         pose: (4, 4) float64 ``T_wc`` (camera-to-world); ``None`` when the dataset has no ground truth.
         index: position of the frame in its sequence.
+        valid: (H, W) bool, where ``image`` holds real pixels (False where e.g. undistortion left the image
+            uncovered, filled with 0); ``None`` when every pixel is real.
     """
 
     timestamp: float
@@ -28,6 +30,7 @@ class Frame:
     depth: torch.Tensor | None = None
     pose: torch.Tensor | None = None
     index: int = 0
+    valid: torch.Tensor | None = None
 
     @property
     def gray(self) -> torch.Tensor:

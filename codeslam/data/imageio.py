@@ -224,19 +224,20 @@ def write_depth_png(path: str | os.PathLike, depth: torch.Tensor | np.ndarray, f
 
 def undistort_frame(
     camera: PinholeCamera, image: torch.Tensor, depth: torch.Tensor | None
-) -> tuple[torch.Tensor, torch.Tensor | None]:
+) -> tuple[torch.Tensor, torch.Tensor | None, torch.Tensor | None]:
     """Resample a frame of a distorted ``camera`` to ``camera.without_distortion()``.
 
     image: (3, H, W) bilinear; depth: (H, W) or None, nearest (never mixes depths across edges). Both go
     through the same map, so a depth map registered pixel-for-pixel to the distorted image stays
-    registered to the undistorted one. Pixels whose ray leaves the original image become 0.
+    registered to the undistorted one. Pixels whose ray leaves the original image become 0; the third result is
+    the (H, W) bool mask of the real pixels (None when all are), for :attr:`Frame.valid`.
     """
-    from codeslam.geometry.resample import undistort_depth, undistort_image
+    from codeslam.geometry.resample import resample_validity, undistort_depth, undistort_image
 
     image = undistort_image(image[None], camera)[0]
     if depth is not None:
         depth = undistort_depth(depth[None, None], camera)[0, 0]
-    return image, depth
+    return image, depth, resample_validity(None, camera, camera.without_distortion())
 
 
 def frame_index(i: int, n: int) -> int:

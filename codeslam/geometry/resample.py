@@ -122,6 +122,20 @@ def resample_depth(depth: torch.Tensor, src: PinholeCamera, dst: PinholeCamera) 
     return values * mask.to(values.dtype)
 
 
+def resample_validity(
+    valid: torch.Tensor | None, src: PinholeCamera, dst: PinholeCamera
+) -> torch.Tensor | None:
+    """Where a resampled image holds real pixels. valid: (src.height, src.width) bool of the source's real pixels
+    (None: all of them) -> (dst.height, dst.width) bool: inside the source (:func:`resample_valid_mask`) and with
+    no invalid source pixel in the bilinear / anti-aliasing footprint; None when every pixel is valid."""
+    device = None if valid is None else valid.device
+    out = resample_valid_mask(src, dst, device)
+    if valid is not None:
+        share = resample_image(valid[None, None].to(torch.float32), src, dst)[0, 0]  # share of real pixels
+        out = out & (share >= 1.0 - 1e-4)
+    return None if bool(out.all()) else out
+
+
 def undistort_image(image: torch.Tensor, camera: PinholeCamera) -> torch.Tensor:
     """(B, C, H, W) image of a distorted camera -> the same-size image of ``camera.without_distortion()``
     (bilinear; pixels whose ray leaves the original image are 0)."""

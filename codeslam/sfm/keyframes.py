@@ -24,11 +24,14 @@ class Keyframe:
         decoder: its linear depth decoder (level 0 has the size of ``image``), or None for a frame of unknown
             depth (the tracker's current frame): it can then only be the B of photometric pairs, its code has no
             effect and its proximity reads as invalid (no occlusion test against it).
+        valid: (H, W) bool, where ``image`` holds real pixels (None: everywhere); photometric residuals never
+            read the others (loss (i)).
     """
 
     image: torch.Tensor
     camera: PinholeCamera
     decoder: LinearDecoder | None
+    valid: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         H, W = self.image.shape[-2:]
@@ -36,6 +39,8 @@ class Keyframe:
             raise CodeSLAMError(f"keyframe image must be (H, W), (1, H, W) or (3, H, W), got {tuple(self.image.shape)}")
         if (self.camera.height, self.camera.width) != (H, W):
             raise CodeSLAMError(f"keyframe image is {W}x{H} but its camera is {self.camera.width}x{self.camera.height}")
+        if self.valid is not None and tuple(self.valid.shape) != (H, W):
+            raise CodeSLAMError(f"keyframe validity mask is {tuple(self.valid.shape)}, its image {W}x{H}")
         if self.decoder is not None and tuple(self.decoder.levels[0].prox0.shape) != (H, W):
             raise CodeSLAMError(
                 f"keyframe image is {W}x{H} but its decoder's finest level is "
@@ -62,6 +67,8 @@ class LevelData:
         params: (F, 4) intrinsics (fx, fy, cx, cy) at this level.
         avg_depth: (F,) average depth a of each decoder (Eq. 4).
         uv: (N, 2) pixel coordinates, row-major (pixel n = (n % W, n // W)).
+        gray_valid: (F, 1, H, W) 1 where the grey value and its Sobel gradient come from real pixels only, 0
+            elsewhere; None when every keyframe's image is valid everywhere.
     """
 
     gray: torch.Tensor
@@ -72,6 +79,7 @@ class LevelData:
     params: torch.Tensor
     avg_depth: torch.Tensor
     uv: torch.Tensor
+    gray_valid: torch.Tensor | None = None
 
     @property
     def height(self) -> int:
@@ -120,6 +128,11 @@ def build_levels(
             raise CodeSLAMError(f"keyframe {i}'s decoder has {kf.decoder.num_levels} levels, {n_levels} needed")
     grays = torch.stack([kf.gray for kf in keyframes]).to(dtype=dtype, device=device)  # (F, 1, H, W)
     pyr = image_pyramid(grays, n_levels)
+    valid_pyr = None
+    if any(kf.valid is not None for kf in keyframes):
+        valids = torch.stack([torch.ones(shape, dtype=dtype, device=device) if kf.valid is None
+                              else kf.valid.to(dtype=dtype, device=device) for kf in keyframes])[:, None]
+        valid_pyr = image_pyramid(valids, n_levels)  # share of real pixels under each pyramid pixel
     out = {}
     for lvl in sorted(set(levels)):
         gray = pyr[lvl].contiguous()
@@ -144,5 +157,13 @@ def build_levels(
             avg_depth=torch.tensor([1.0 if kf.decoder is None else kf.decoder.avg_depth for kf in keyframes],
                                    dtype=dtype, device=device),
             uv=pixel_grid(H, W, dtype, device).reshape(-1, 2),
+            gray_valid=None if valid_pyr is None else _real_pixels(valid_pyr[lvl]),
         )
     return out
+
+
+def _real_pixels(share: torch.Tensor) -> torch.Tensor:
+    """(F, 1, H, W) share of real source pixels under each pyramid pixel -> 1 where it is all real and so are its
+    3x3 neighbours (the Sobel footprint of the gradient), else 0."""
+    bad = (share < 1.0 - 1e-4).to(share.dtype)
+    return 1.0 - torch.nn.functional.max_pool2d(bad, kernel_size=3, stride=1, padding=1)

@@ -202,7 +202,8 @@ def evaluate_pairs(
 
     # One lookup for every channel of B: grey, proximity, proximity validity, [Sobel gradients], [uncertainty].
     prox_ok = (torch.isfinite(prox) & (prox != 0)).to(prox.dtype).detach()  # 0 = invalid sentinel (holes)
-    chans = [level.gray, prox, prox_ok]
+    gray_ok = torch.ones_like(prox_ok) if level.gray_valid is None else level.gray_valid  # real image pixels
+    chans = [level.gray, prox, prox_ok, gray_ok]
     sobel = with_gradients and cfg.gradient_mode == "sobel"
     if sobel:
         chans += [level.gray_grad[:, 0], image_gradients(prox)[:, 0]]  # (F, 2, H, W) each
@@ -213,8 +214,8 @@ def evaluate_pairs(
     gray_B, prox_B = sampled[:, 0], sampled[:, 1]
     grad_gray_B = grad_prox_B = None
     if sobel:
-        grad_gray_B = sampled[:, 3:5].transpose(1, 2)  # (P, N, 2)
-        grad_prox_B = sampled[:, 5:7].transpose(1, 2)
+        grad_gray_B = sampled[:, 4:6].transpose(1, 2)  # (P, N, 2)
+        grad_prox_B = sampled[:, 6:8].transpose(1, 2)
     elif with_gradients:
         g = interpolant_gradient(torch.cat([level.gray, prox], dim=1)[iB], v_safe)  # (P, 2, 2, N)
         grad_gray_B, grad_prox_B = g[:, 0].transpose(1, 2), g[:, 1].transpose(1, 2)
@@ -249,7 +250,9 @@ def evaluate_pairs(
             r = level.gray[iA].reshape(P, -1) - (gain * gray_B + bias)  # Eq. 13 with affine brightness (Sec. 5.2)
             fixed.append(w_slant * torch.where(occluded.detach(), cfg.occlusion_weight * ones, ones))
             sigmas.append(cfg.sigma_photometric * ones)
-            valids.append(valid)
+            # (i): only real image pixels, at u in A and in all four bilinear neighbours of v in B.
+            gray_A_ok = gray_ok[iA].reshape(P, -1) > 0.5
+            valids.append(valid & gray_A_ok & (sampled[:, 3].detach() > BILINEAR_ALL_VALID))
             hubers.append(cfg.huber_photometric)
         else:
             r = geo_x - geo_B  # Eq. 14 in the space f (log depth or proximity)

@@ -29,7 +29,7 @@ from codeslam.data.frame import Frame
 from codeslam.errors import CodeSLAMError, ConfigError
 from codeslam.eval.trajectory import Trajectory, write_tum
 from codeslam.geometry.camera import PinholeCamera
-from codeslam.geometry.resample import resample_depth, resample_image
+from codeslam.geometry.resample import resample_depth, resample_image, resample_validity
 from codeslam.io import atomic_path, atomic_write, write_json
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.system import CodeSLAM, DepthModelFactory, FrameResult
@@ -73,7 +73,8 @@ def to_camera(frame: Frame, camera: PinholeCamera) -> Frame:
         return frame
     image = resample_image(frame.image[None], frame.camera, camera)[0]
     depth = None if frame.depth is None else resample_depth(frame.depth[None, None], frame.camera, camera)[0, 0]
-    return Frame(frame.timestamp, image, camera, depth, frame.pose, frame.index)
+    valid = resample_validity(frame.valid, frame.camera, camera)
+    return Frame(frame.timestamp, image, camera, depth, frame.pose, frame.index, valid)
 
 
 @dataclass

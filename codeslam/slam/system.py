@@ -139,7 +139,7 @@ class CodeSLAM:
             return self._record(frame, ref, T_kf_guess, False, timer, reason="non-finite pixels in the image")
         with timer("track"):  # Sec. 4.2: coarse-to-fine photometric alignment, keyframe depth fixed
             track = self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, T_kf_guess,
-                                       self._affine_guess(ref))
+                                       self._affine_guess(ref), valid=frame.valid)
         if not track.ok:  # never a wild pose: the motion model's guess, flagged
             return self._record(frame, ref, T_kf_guess, False, timer, track=track, reason=track.reason)
         frames_since = len(self._records) - self._keyframe_record[ref.id]  # 1 for the frame after the keyframe
@@ -207,7 +207,8 @@ class CodeSLAM:
         image = frame.image.to(dtype=self.dtype, device=self.device)  # RGB kept for the map's colours
         return MapKeyframe(
             id=len(self.keyframes), frame_index=frame.index, timestamp=float(frame.timestamp),
-            keyframe=Keyframe(image, frame.camera, decoder), T_wc=project_to_se3(T_wc),
+            keyframe=Keyframe(image, frame.camera, decoder, _device_mask(frame.valid, self.device)),
+            T_wc=project_to_se3(T_wc),
             code=torch.zeros(decoder.code_size, dtype=self.dtype, device=self.device),
         )
 
@@ -267,3 +268,8 @@ class CodeSLAM:
     def tracking_failures(self) -> list[int]:
         """Indices of the frames whose tracking failed."""
         return [r.index for r in self._records if not r.ok]
+
+
+def _device_mask(valid: torch.Tensor | None, device) -> torch.Tensor | None:
+    """A frame's validity mask (or None) on ``device``."""
+    return None if valid is None else valid.to(device)

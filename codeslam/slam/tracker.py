@@ -92,14 +92,18 @@ class PhotometricTracker:
         camera: PinholeCamera,
         T_kf_init: torch.Tensor,
         affine_init: torch.Tensor | None = None,
+        valid: torch.Tensor | None = None,
     ) -> TrackResult:
         """Align ``image`` ((1, H, W) grey or (3, H, W) RGB, seen by ``camera``) to ``keyframe`` (with decoder)
-        whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,)."""
+        whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,).
+        ``valid`` (H, W) bool marks the image's real pixels (None: all)."""
         cfg, sfm_cfg = self.cfg, self.sfm_cfg
         ref = keyframe.decoder.levels[0].jac
         dtype, device = ref.dtype, ref.device
-        fixed_depth = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, code))
-        frame = Keyframe(image.to(dtype=dtype, device=device), camera, None)  # no depth: B of the pair only
+        fixed_depth = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, code),
+                               keyframe.valid)
+        mask = None if valid is None else valid.to(device)
+        frame = Keyframe(image.to(dtype=dtype, device=device), camera, None, mask)  # no depth: B of the pair only
         levels = build_levels([fixed_depth, frame], cfg.pyramid_levels, dtype, device)
         eye = torch.eye(4, dtype=dtype, device=device)
         affine = torch.zeros(1, AFFINE_DIM, dtype=dtype, device=device)

@@ -91,7 +91,7 @@ class MapKeyframe:
     def freeze(self) -> None:
         """Keep the final depth, drop the decoder (its Jacobian is the bulk of a keyframe's memory)."""
         self.depth = self.depth_map().detach()
-        self.keyframe = Keyframe(self.keyframe.image, self.keyframe.camera, None)
+        self.keyframe = Keyframe(self.keyframe.image, self.keyframe.camera, None, self.keyframe.valid)
 
 
 @dataclass

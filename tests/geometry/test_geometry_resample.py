@@ -185,3 +185,22 @@ def test_identity_resample_is_exact_and_dtype_follows_input():
     out = resample_image(img, SRC, SRC)
     assert out.dtype == torch.float32 and torch.allclose(out, img, atol=1e-5)
     assert math.isclose(resample_valid_mask(SRC, SRC).float().mean().item(), 1.0)
+
+
+def test_resample_validity_marks_exactly_the_pixels_undistortion_fills():
+    """Undistorting TUM fr1's camera leaves parts of the frame uncovered (filled with 0): the validity mask is
+    False exactly there, and a resampled mask drops every pixel whose footprint touches an invalid one."""
+    from codeslam.data.imageio import undistort_frame
+    from codeslam.geometry.resample import resample_validity
+
+    cam = PinholeCamera(160.0, 160.0, 79.5, 61.5, 160, 120, TUM_FR1_DIST)
+    image, _, valid = undistort_frame(cam, torch.ones(3, 120, 160), None)
+    assert valid is not None and 0 < int((~valid).sum()) < valid.numel() // 4
+    assert torch.equal(valid, image.mean(0) > 0)
+    ideal = cam.without_distortion()
+    assert resample_validity(None, ideal, ideal) is None  # identity, every pixel real
+    mask = torch.ones(120, 160, dtype=torch.bool)
+    mask[:, 80] = False  # one invalid column
+    half = ideal.resized(80, 60)
+    out = resample_validity(mask, ideal, half)
+    assert out is not None and not bool(out[:, 40].any()) and bool(out[:, 20].all()) and bool(out[:, 60].all())

@@ -265,3 +265,40 @@ def test_geometric_lookups_touching_a_hole_of_b_are_masked(problem):
     assert near.sum() > 10
     assert not ev.valid[p, 1][near].any()  # geometric: masked
     assert ev.valid[p, 0][near].all()  # photometric: images have no holes
+
+
+def test_photometric_residuals_read_only_real_image_pixels(problem):
+    """Loss (i) for images: a pixel of A that is not real, or a warp into a part of B that is not, masks the
+    photometric row; the geometric rows do not depend on the image."""
+    level, state = problem
+    cfg = SfMConfig()
+    base = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cfg)
+    ok = torch.ones_like(level.gray)
+    ok[0, 0, :, :10] = 0  # frame 0: left 10 columns not real
+    ok[1] = 0  # frame 1: nothing real
+    masked = type(level)(**{**level.__dict__, "gray_valid": ok})
+    ev = evaluate_pairs(masked, PAIRS, state.poses, state.codes, state.affine, cfg)
+    torch.testing.assert_close(ev.r, base.r * ev.valid)  # same residuals where still valid
+    assert torch.equal(ev.valid[:, 1], base.valid[:, 1])  # geometric rows untouched
+    assert not ev.valid[0, 0].any() and not ev.valid[1, 0].any()  # pairs (0, 1) and (1, 0) read frame 1
+    cols = ev.v[2, :, 0]  # pair (2, 0): every pixel of A = 2 is real, but those landing in 0's unreal columns
+    assert base.valid[2, 0][cols < 10].any() and not ev.valid[2, 0][cols < 10].any()  # are masked
+    assert torch.equal(ev.valid[2, 0] | (cols < 11), base.valid[2, 0] | (cols < 11))
+
+
+def test_level_validity_covers_the_pyramid_and_sobel_footprints():
+    """A keyframe's unreal pixels make every pyramid pixel fed by them, and its 3x3 Sobel neighbours, unreal."""
+    gt = [look_pose(), look_pose((0.1, 0.0, 0.0), (0.0, 0.02, 0.0))]
+    kfs, _, _ = make_frames(gt, width=64, height=48, code_size=4, levels=3)
+    mask = torch.ones(48, 64, dtype=torch.bool)
+    mask[-1] = False  # the bottom row (what undistorting TUM fr1 leaves in the canonical camera)
+    kfs[0] = type(kfs[0])(kfs[0].image, kfs[0].camera, kfs[0].decoder, mask)
+    levels = build_levels(kfs, [0, 1, 2])
+    v0 = levels[0].gray_valid
+    assert torch.equal(v0[1], torch.ones_like(v0[1]))  # frame 1: all real
+    assert not v0[0, 0, -2:].any() and v0[0, 0, :-2].all()  # row 47 and its Sobel neighbour row 46
+    for lvl in (1, 2):
+        v = levels[lvl].gray_valid[0, 0]
+        assert not v[-1].any() and v[0].all()
+    with pytest.raises(Exception, match="validity mask"):
+        type(kfs[0])(kfs[0].image, kfs[0].camera, kfs[0].decoder, torch.ones(47, 64, dtype=torch.bool))
