@@ -67,8 +67,8 @@ class LevelData:
         params: (F, 4) intrinsics (fx, fy, cx, cy) at this level.
         avg_depth: (F,) average depth a of each decoder (Eq. 4).
         uv: (N, 2) pixel coordinates, row-major (pixel n = (n % W, n // W)).
-        gray_valid: (F, 1, H, W) 1 where the grey value and its Sobel gradient come from real pixels only, 0
-            elsewhere; None when every keyframe's image is valid everywhere.
+        gray_valid: (F, 1, H, W) 1 where the grey value comes from real pixels only, 0 elsewhere; None when
+            every keyframe's image is valid everywhere.
     """
 
     gray: torch.Tensor
@@ -163,7 +163,10 @@ def build_levels(
 
 
 def _real_pixels(share: torch.Tensor) -> torch.Tensor:
-    """(F, 1, H, W) share of real source pixels under each pyramid pixel -> 1 where it is all real and so are its
-    3x3 neighbours (the Sobel footprint of the gradient), else 0."""
-    bad = (share < 1.0 - 1e-4).to(share.dtype)
-    return 1.0 - torch.nn.functional.max_pool2d(bad, kernel_size=3, stride=1, padding=1)
+    """(F, 1, H, W) share of real source pixels under each pyramid pixel -> 1 where it is all real, else 0.
+
+    Not eroded by the 3x3 Sobel footprint, although the gradients next to an unreal pixel see it: the residuals
+    stay exact either way, and eroding cost too much of the coarse levels (16x12 at level 3). Measured with
+    `codeslam slam` on TUM fr1/rpy, whose canonical frames lose their last two rows: eroded, ATE 0.068 m and
+    8.2 deg rotation RMSE; not eroded, 0.046 m and 5.7 deg (no mask at all: 0.044 m, 5.6 deg)."""
+    return (share >= 1.0 - 1e-4).to(share.dtype)
