@@ -229,8 +229,7 @@ class DepthModel:
         :func:`codeslam.sfm.sfm` and the SLAM system optimise."""
         feats = self.features(frame.image[None])
         decoder = self.linear_decoders(feats)[0]
-        valid = None if frame.valid is None else frame.valid.to(self.device)
-        return Keyframe(frame.image.to(self.device), self.camera, decoder, valid)
+        return Keyframe(frame.image.to(self.device), self.camera, decoder, frame.valid)
 
 
 @dataclass

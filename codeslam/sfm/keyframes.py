@@ -24,8 +24,8 @@ class Keyframe:
         decoder: its linear depth decoder (level 0 has the size of ``image``), or None for a frame of unknown
             depth (the tracker's current frame): it can then only be the B of photometric pairs, its code has no
             effect and its proximity reads as invalid (no occlusion test against it).
-        valid: (H, W) bool, where ``image`` holds real pixels (None: everywhere); photometric residuals never
-            read the others (loss (i)).
+        valid: (H, W) bool, where ``image`` holds real pixels (None: everywhere), on any device
+            (:func:`build_levels` moves it); photometric residuals never read the others (loss (i)).
     """
 
     image: torch.Tensor

@@ -207,7 +207,7 @@ class CodeSLAM:
         image = frame.image.to(dtype=self.dtype, device=self.device)  # RGB kept for the map's colours
         return MapKeyframe(
             id=len(self.keyframes), frame_index=frame.index, timestamp=float(frame.timestamp),
-            keyframe=Keyframe(image, frame.camera, decoder, _device_mask(frame.valid, self.device)),
+            keyframe=Keyframe(image, frame.camera, decoder, frame.valid),
             T_wc=project_to_se3(T_wc),
             code=torch.zeros(decoder.code_size, dtype=self.dtype, device=self.device),
         )
@@ -268,8 +268,3 @@ class CodeSLAM:
     def tracking_failures(self) -> list[int]:
         """Indices of the frames whose tracking failed."""
         return [r.index for r in self._records if not r.ok]
-
-
-def _device_mask(valid: torch.Tensor | None, device) -> torch.Tensor | None:
-    """A frame's validity mask (or None) on ``device``."""
-    return None if valid is None else valid.to(device)

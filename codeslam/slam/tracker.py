@@ -102,8 +102,7 @@ class PhotometricTracker:
         dtype, device = ref.dtype, ref.device
         fixed_depth = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, code),
                                keyframe.valid)
-        mask = None if valid is None else valid.to(device)
-        frame = Keyframe(image.to(dtype=dtype, device=device), camera, None, mask)  # no depth: B of the pair only
+        frame = Keyframe(image.to(dtype=dtype, device=device), camera, None, valid)  # no depth: B of the pair only
         levels = build_levels([fixed_depth, frame], cfg.pyramid_levels, dtype, device)
         eye = torch.eye(4, dtype=dtype, device=device)
         affine = torch.zeros(1, AFFINE_DIM, dtype=dtype, device=device)
