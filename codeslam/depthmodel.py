@@ -22,11 +22,10 @@ from dataclasses import dataclass, field
 
 import torch
 
-from codeslam.data.frame import Frame
+from codeslam.data.frame import Frame, resample_frame
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.proximity import depth_to_prox, prox_to_depth
-from codeslam.geometry.resample import resample_depth, resample_image, resample_validity
 from codeslam.network.jacobian import code_jacobian
 from codeslam.network.model import CodeNetwork, to_network_image
 from codeslam.recon.metrics import DepthErrors
@@ -134,13 +133,9 @@ class DepthModel:
     # --- frames -------------------------------------------------------------------------------------------
     def canonical(self, frame: Frame) -> CanonicalFrame:
         """Resample a frame's image (bilinear, anti-aliased) and depth (nearest) to the canonical camera."""
-        cam = self.camera
-        image = resample_image(frame.image[None].float(), frame.camera, cam)[0]  # (3, H, W)
-        depth = None
-        if frame.depth is not None:
-            depth = resample_depth(frame.depth[None, None].float(), frame.camera, cam)[0, 0]  # (H, W)
-        valid = resample_validity(frame.valid, frame.camera, cam)
-        return CanonicalFrame(image.clamp(0, 1), depth, frame.pose, float(frame.timestamp), int(frame.index), valid)
+        f = resample_frame(frame, self.camera)
+        return CanonicalFrame(f.image.float().clamp(0, 1), None if f.depth is None else f.depth.float(), f.pose,
+                              float(f.timestamp), int(f.index), f.valid)
 
     def target_prox(self, depth: torch.Tensor) -> torch.Tensor:
         """Depth (...) -> proximity (...) with the network's a; 0 where the depth is invalid."""

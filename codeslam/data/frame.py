@@ -37,3 +37,18 @@ class Frame:
         """(1, H, W) luminance in [0, 1] (ITU-R BT.601 weights)."""
         w = torch.tensor([0.299, 0.587, 0.114], dtype=self.image.dtype).view(3, 1, 1)
         return (self.image * w).sum(0, keepdim=True)
+
+
+def resample_frame(frame: Frame, camera: PinholeCamera) -> Frame:
+    """The frame seen by ``camera`` (same optical centre and axes, so the pose and z-depths carry over): image
+    bilinear and anti-aliased, depth nearest, validity mask resampled (:mod:`codeslam.geometry.resample`)."""
+    from codeslam.geometry.resample import resample_depth, resample_image, resample_validity
+
+    if frame.camera == camera:
+        return frame
+    image = resample_image(frame.image[None].float(), frame.camera, camera)[0]
+    depth = None
+    if frame.depth is not None:
+        depth = resample_depth(frame.depth[None, None].float(), frame.camera, camera)[0, 0]
+    valid = resample_validity(frame.valid, frame.camera, camera)
+    return Frame(frame.timestamp, image, camera, depth, frame.pose, frame.index, valid)

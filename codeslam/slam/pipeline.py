@@ -25,11 +25,10 @@ import numpy as np
 import torch
 
 from codeslam.data.base import Sequence
-from codeslam.data.frame import Frame
+from codeslam.data.frame import resample_frame
 from codeslam.errors import CodeSLAMError, ConfigError
 from codeslam.eval.trajectory import Trajectory, write_tum
 from codeslam.geometry.camera import PinholeCamera
-from codeslam.geometry.resample import resample_depth, resample_image, resample_validity
 from codeslam.io import atomic_path, atomic_write, write_json
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.system import CodeSLAM, DepthModelFactory, FrameResult
@@ -65,16 +64,6 @@ def parse_frame_range(spec: str | None, num_frames: int) -> range:
     if len(frames) < 2:
         raise ConfigError(f"--frames {spec!r} selects {len(frames)} frame(s); SLAM needs at least 2")
     return frames
-
-
-def to_camera(frame: Frame, camera: PinholeCamera) -> Frame:
-    """The frame resampled to ``camera`` (same optical centre and axes: the pose and z-depths carry over)."""
-    if frame.camera == camera:
-        return frame
-    image = resample_image(frame.image[None], frame.camera, camera)[0]
-    depth = None if frame.depth is None else resample_depth(frame.depth[None, None], frame.camera, camera)[0, 0]
-    valid = resample_validity(frame.valid, frame.camera, camera)
-    return Frame(frame.timestamp, image, camera, depth, frame.pose, frame.index, valid)
 
 
 @dataclass
@@ -125,7 +114,7 @@ def run_slam(
         t0 = time.perf_counter()
         raw = sequence[i]
         t1 = time.perf_counter()
-        frame = to_camera(raw, camera)
+        frame = resample_frame(raw, camera)
         t2 = time.perf_counter()
         result = system.process(frame)
         t3 = time.perf_counter()

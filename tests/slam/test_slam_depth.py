@@ -9,13 +9,13 @@ import pytest
 import torch
 from slam_scene import synth_frames
 
+from codeslam.data.frame import resample_frame
 from codeslam.depthmodel import DepthModel
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.proximity import depth_to_prox
 from codeslam.network import CodeNetwork, NetworkConfig
 from codeslam.slam.depth import network_depth_model, standin_depth_model, standin_true_code
-from codeslam.slam.pipeline import to_camera
 
 
 def test_standin_reaches_the_measured_depth_at_its_true_code():
@@ -34,7 +34,7 @@ def test_network_depth_model_decodes_like_the_network():
     cfg = NetworkConfig(code_size=4, width=64, height=48, image_channels=(4, 4, 4, 4), depth_channels=(4, 4, 4, 4),
                         full_res_channels=4, bottleneck_channels=4, fc_units=8)
     model = DepthModel(CodeNetwork(cfg).eval())
-    frame = to_camera(synth_frames(3, 12, 10.0)[0], model.camera)
+    frame = resample_frame(synth_frames(3, 12, 10.0)[0], model.camera)
     dec = network_depth_model(model)(frame)
     assert dec.num_levels == 4 and dec.code_size == 4 and dec.avg_depth == cfg.avg_depth
     code = torch.tensor([0.5, -1.0, 0.25, 2.0])
