@@ -29,6 +29,17 @@ def read_yaml(path: str | os.PathLike) -> Any:
         raise ConfigError(f"cannot read config file {path}: {' '.join(str(e).split())}") from None
 
 
+def read_yaml_mapping(path: str | os.PathLike, holds: str) -> dict:
+    """The mapping in the YAML file ``path`` ({} for an empty file), or ConfigError naming the file and what it
+    should hold (``holds``, e.g. "sections tracker, keyframes, window")."""
+    data = read_yaml(path)
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {path} must hold a mapping ({holds})")
+    return data
+
+
 def _is_int(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool) and abs(v) <= MAX_CONFIG_INT
 

@@ -36,13 +36,13 @@ PAIR_MODES = ("master", "all")
 
 
 def _load_sfm_config(path: Path | None):
-    from codeslam.configfile import read_yaml
+    from codeslam.configfile import read_yaml_mapping
     from codeslam.sfm import SfMConfig
 
     if path is None:
         return SfMConfig()
-    data = read_yaml(path)
-    if isinstance(data, dict) and set(data) == {"sfm"}:
+    data = read_yaml_mapping(path, "SfMConfig fields, optionally under 'sfm:'")
+    if set(data) == {"sfm"}:
         data = data["sfm"]
     return SfMConfig.from_dict(data or {})
 

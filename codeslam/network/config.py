@@ -23,7 +23,7 @@ from typing import Any
 
 import yaml
 
-from codeslam.configfile import from_mapping, read_yaml
+from codeslam.configfile import from_mapping, read_yaml_mapping
 from codeslam.errors import ConfigError
 
 #: number of down-sampling stages of every branch; image sizes must be multiples of 2 ** this
@@ -215,11 +215,7 @@ def load_run_config(path: str | os.PathLike | None, base: RunConfig | None = Non
     if path is None:
         return base
     path = Path(path)
-    data = read_yaml(path)
-    if data is None:
-        return base
-    if not isinstance(data, dict):
-        raise ConfigError(f"config file {path} must hold a mapping with 'network' and/or 'train' sections")
+    data = read_yaml_mapping(path, "sections 'network' and/or 'train'")
     unknown = sorted(set(data) - {"network", "train"})
     if unknown:
         raise ConfigError(f"config file {path}: unknown section(s) {', '.join(map(str, unknown))}")

@@ -14,12 +14,11 @@ from __future__ import annotations
 
 import os
 from dataclasses import asdict, dataclass, field, fields, replace
-from pathlib import Path
 from typing import Any
 
 import yaml
 
-from codeslam.configfile import coerce, read_yaml
+from codeslam.configfile import coerce, read_yaml_mapping
 from codeslam.errors import ConfigError
 from codeslam.sfm.config import SfMConfig
 
@@ -227,10 +226,4 @@ def load_config(path: str | os.PathLike | None = None, base: SLAMConfig | None =
     base = base or SLAMConfig()
     if path is None:
         return base
-    path = Path(path)
-    data = read_yaml(path)
-    if data is None:
-        return base
-    if not isinstance(data, dict):
-        raise ConfigError(f"config file {path} must hold a mapping (sections tracker, keyframes, window)")
-    return overlay_config(base, data)
+    return overlay_config(base, read_yaml_mapping(path, "sections tracker, keyframes, window"))
