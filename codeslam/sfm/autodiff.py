@@ -22,7 +22,7 @@ from codeslam.geometry.lie import se3_exp
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import LevelData
 from codeslam.sfm.residuals import evaluate_pairs, robust_weights
-from codeslam.sfm.variables import AFFINE, CODE, POSE, BlockId, SfMState, VariableLayout
+from codeslam.sfm.variables import AFFINE, CODE, POSE, RS, BlockId, SfMState, VariableLayout
 
 
 def bilinear_sample_gather(img: torch.Tensor, uv: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -60,12 +60,20 @@ def retract_differentiable(state: SfMState, layout: VariableLayout, delta: torch
         sl = layout.slice(BlockId(AFFINE, p))
         affine.append(state.affine[p] if sl is None else state.affine[p] + delta[sl])
     aff = torch.stack(affine) if affine else state.affine
-    return SfMState(torch.stack(poses), torch.stack(codes), aff)
+    rs = state.rs
+    if rs is not None:
+        rows = []
+        for i in range(rs.shape[0]):
+            sl = layout.slice(BlockId(RS, i))
+            rows.append(rs[i] if sl is None else rs[i] + delta[sl])
+        rs = torch.stack(rows)
+    return SfMState(torch.stack(poses), torch.stack(codes), aff, rs)
 
 
 def _evaluate(level: LevelData, pairs: torch.Tensor, state: SfMState, cfg: SfMConfig):
     affine = state.affine if cfg.affine_brightness else None
-    return evaluate_pairs(level, pairs, state.poses, state.codes, affine, cfg, False, bilinear_sample_gather)
+    rs = state.rs if cfg.rolling_shutter else None
+    return evaluate_pairs(level, pairs, state.poses, state.codes, affine, cfg, False, bilinear_sample_gather, rs=rs)
 
 
 def weighted_residual_fn(

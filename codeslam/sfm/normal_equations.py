@@ -11,7 +11,8 @@ a row of the precomputed ``J_A = dP_A/dc_A``, ``d r / d c_A = s_A J_A[u]``, so
   ``H_{c_B c_B} = J_B[v]^T diag(w) J_B[v]``, ``H_{c_A c_B} = J_A^T diag(w s_A s_B) J_B[v]``;
 * the relative-pose Jacobian maps to the absolute poses by the adjoint (see :mod:`codeslam.sfm.warp`), so the pose
   blocks are ``Q^T (J_rel^T W J_rel) Q`` with the 8x14 map Q of each pair: the pixel sums are done once in the
-  8 local dimensions (relative pose + affine).
+  8 local dimensions (relative pose + affine); with the rolling-shutter model the readout rotations of A and B
+  add 6 local columns that map to themselves (14x20).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import torch
 
 from codeslam.sfm.keyframes import LevelData
 from codeslam.sfm.residuals import GEOMETRIC, PairTerms
-from codeslam.sfm.variables import AFFINE, CODE, POSE, BlockId, VariableLayout
+from codeslam.sfm.variables import AFFINE, CODE, POSE, RS, BlockId, VariableLayout
 from codeslam.sfm.warp import relative_pose_jacobians
 
 
@@ -42,17 +43,28 @@ def _timed(profile: dict | None, key: str, device: torch.device):
     profile[key] = profile.get(key, 0.0) + time.perf_counter() - t0
 
 
-def local_to_absolute(poses: torch.Tensor, pairs: torch.Tensor) -> torch.Tensor:
+def local_to_absolute(poses: torch.Tensor, pairs: torch.Tensor, rolling_shutter: bool = False) -> torch.Tensor:
     """(F, 4, 4) T_wc, (P, 2) pairs -> Q (P, 8, 14): ``[xi_BA, a, b] = Q [xi_A, xi_B, a, b]`` (chain rule of
-    :func:`codeslam.sfm.warp.relative_pose_jacobians`; the affine parameters map to themselves)."""
+    :func:`codeslam.sfm.warp.relative_pose_jacobians`; the affine parameters map to themselves). With
+    ``rolling_shutter`` (P, 14, 20): the readout rotations ``omega_A, omega_B`` are appended and map to
+    themselves."""
     P = pairs.shape[0]
     dA, dB = relative_pose_jacobians(poses[pairs[:, 1]])  # (P, 6, 6) each
-    Q = torch.zeros(P, 8, 14, dtype=poses.dtype, device=poses.device)
+    n = 14 if rolling_shutter else 8
+    Q = torch.zeros(P, n, n + 6, dtype=poses.dtype, device=poses.device)
     Q[:, :6, :6] = dA
     Q[:, :6, 6:12] = dB
-    Q[:, 6, 12] = 1.0
-    Q[:, 7, 13] = 1.0
+    idx = torch.arange(6, n, device=poses.device)
+    Q[:, idx, idx + 6] = 1.0
     return Q
+
+
+def _local_blocks(a: int, b: int, p: int, rolling_shutter: bool) -> list[tuple[BlockId, int, int]]:
+    """The blocks of pair p = (a, b) in the columns of :func:`local_to_absolute`'s Q, with their column ranges."""
+    blocks = [(BlockId(POSE, a), 0, 6), (BlockId(POSE, b), 6, 12), (BlockId(AFFINE, p), 12, 14)]
+    if rolling_shutter:
+        blocks += [(BlockId(RS, a), 14, 17), (BlockId(RS, b), 17, 20)]
+    return blocks
 
 
 def _add(H: torch.Tensor, rows: slice, cols: slice, M: torch.Tensor, symmetric: bool) -> None:
@@ -84,16 +96,19 @@ def assemble(
     iA = pairs[:, 0]
     pair_list = [(int(a), int(b)) for a, b in pairs.tolist()]  # host copy: one transfer, no per-pair syncs
     w, r = terms.w, terms.r  # (P, T, N)
-    Jd = torch.cat([terms.J_rel, terms.J_aff], dim=-1)  # (P, T, N, 8) dense columns [xi_BA, a, b]
+    rs = terms.J_rs is not None
+    # (P, T, N, L) dense columns [xi_BA, a, b] (L = 8), then [omega_A, omega_B] with a rolling shutter (L = 14)
+    Jd = torch.cat([terms.J_rel, terms.J_aff] + ([terms.J_rs] if rs else []), dim=-1)
+    L = Jd.shape[-1]
     G = level.jac.reshape(F_, C, N)  # (F, C, N), J_A^T of every frame (a view)
 
     with _timed(profile, "gemm", dev):
-        Jd_flat = Jd.reshape(P, T * N, 8)
-        H_dd = Jd_flat.transpose(1, 2) @ ((w.reshape(P, T * N, 1)) * Jd_flat)  # (P, 8, 8)
-    g_d = (Jd_flat * (w * r).reshape(P, T * N, 1)).sum(1)  # (P, 8)
-    Q = local_to_absolute(poses.to(dtype), pairs)  # (P, 8, 14)
-    H_loc = Q.transpose(1, 2) @ H_dd @ Q  # (P, 14, 14) over [pose A, pose B, affine]
-    g_loc = (Q.transpose(1, 2) @ g_d.unsqueeze(-1)).squeeze(-1)  # (P, 14)
+        Jd_flat = Jd.reshape(P, T * N, L)
+        H_dd = Jd_flat.transpose(1, 2) @ ((w.reshape(P, T * N, 1)) * Jd_flat)  # (P, L, L)
+    g_d = (Jd_flat * (w * r).reshape(P, T * N, 1)).sum(1)  # (P, L)
+    Q = local_to_absolute(poses.to(dtype), pairs, rs)  # (P, L, L + 6)
+    H_loc = Q.transpose(1, 2) @ H_dd @ Q  # (P, L + 6, L + 6) over [pose A, pose B, affine, (rs A, rs B)]
+    g_loc = (Q.transpose(1, 2) @ g_d.unsqueeze(-1)).squeeze(-1)  # (P, L + 6)
 
     # ---- codes of A: one product per frame over all pairs in which it is A ---------------------------------
     code_A_free = [layout.slice(BlockId(CODE, f)) for f in range(F_)]
@@ -103,14 +118,14 @@ def assemble(
         onehot = torch.nn.functional.one_hot(iA, F_).to(dtype).transpose(0, 1)  # (F, P): sums pairs per frame A
         q = onehot @ (ws_A * terms.s_A).sum(1)  # (F, N), sum over pairs and types of w s_A^2
         gr = onehot @ (ws_A * r).sum(1)  # (F, N), sum of w s_A r
-        M = (ws_A.unsqueeze(-1) * Jd).sum(1)  # (P, N, 8), w s_A J_dense summed over types
+        M = (ws_A.unsqueeze(-1) * Jd).sum(1)  # (P, N, L), w s_A J_dense summed over types
         for f in frames:
             sl = code_A_free[f]
             with _timed(profile, "gemm", dev):
                 H[sl, sl] += (G[f] * q[f]) @ G[f].T  # J_A^T diag(q) J_A, (C, C)
             g[sl] += G[f] @ gr[f]
         with _timed(profile, "gemm", dev):
-            # J_A^T (w s_A J_dense), (C, 8) per pair; (M^T J_A^T)^T is the faster GEMM shape for a (C, N) J_A.
+            # J_A^T (w s_A J_dense), (C, L) per pair; (M^T J_A^T)^T is the faster GEMM shape for a (C, N) J_A.
             H_Ad = [None if code_A_free[a] is None else (M[p].T @ G[a].T).T for p, (a, _) in enumerate(pair_list)]
 
     # ---- codes of B through the geometric residual's J_B[v] -------------------------------------------------
@@ -120,10 +135,10 @@ def assemble(
         wg, sA_g, sB_g, rg = w[:, tg], terms.s_A[:, tg], terms.s_B[:, tg], r[:, tg]  # (P, N)
 
     # ---- scatter the per-pair blocks ------------------------------------------------------------------------
-    loc = [(0, 6), (6, 12), (12, 14)]
     for p, (a, b) in enumerate(pair_list):
-        ids = [BlockId(POSE, a), BlockId(POSE, b), BlockId(AFFINE, p)]
-        sls = [layout.slice(i) for i in ids]
+        blocks = _local_blocks(a, b, p, rs)
+        loc = [(i0, i1) for _, i0, i1 in blocks]
+        sls = [layout.slice(i) for i, _, _ in blocks]
         for (i0, i1), si in zip(loc, sls):
             if si is None:
                 continue
@@ -134,7 +149,7 @@ def assemble(
         sA = code_A_free[a]
         sB = layout.slice(BlockId(CODE, b))
         if sA is not None:
-            H_Aloc = H_Ad[p] @ Q[p]  # (C, 14)
+            H_Aloc = H_Ad[p] @ Q[p]  # (C, L + 6)
             for (j0, j1), sj in zip(loc, sls):
                 if sj is not None:
                     _add(H, sA, sj, H_Aloc[:, j0:j1], True)
@@ -142,11 +157,11 @@ def assemble(
             JB = terms.JB_w[p]  # (C, N), J_B[v]^T
             with _timed(profile, "gemm", dev):
                 H[sB, sB] += (JB * (wg[p] * sB_g[p] * sB_g[p])) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
-                H_Bd = JB @ ((wg[p] * sB_g[p]).unsqueeze(-1) * Jd[p, tg])  # (C, 8)
+                H_Bd = JB @ ((wg[p] * sB_g[p]).unsqueeze(-1) * Jd[p, tg])  # (C, L)
                 if sA is not None:
                     _add(H, sA, sB, (G[a] * (wg[p] * sA_g[p] * sB_g[p])) @ JB.T, True)  # J_A^T diag(.) J_B[v]
             g[sB] += JB @ (wg[p] * sB_g[p] * rg[p])
-            H_Bloc = H_Bd @ Q[p]  # (C, 14)
+            H_Bloc = H_Bd @ Q[p]  # (C, L + 6)
             for (j0, j1), sj in zip(loc, sls):
                 if sj is not None:
                     _add(H, sB, sj, H_Bloc[:, j0:j1], True)
@@ -160,12 +175,12 @@ def dense_jacobian(terms: PairTerms, pairs: torch.Tensor, poses: torch.Tensor, l
     P, T, N = terms.r.shape
     C = level.code_size
     J = torch.zeros(P, T, N, layout.dim, dtype=terms.r.dtype, device=terms.r.device)
-    Q = local_to_absolute(poses.to(terms.r.dtype), pairs)
-    J_loc = torch.cat([terms.J_rel, terms.J_aff], dim=-1) @ Q.unsqueeze(1)  # (P, T, N, 14)
+    rs = terms.J_rs is not None
+    Q = local_to_absolute(poses.to(terms.r.dtype), pairs, rs)
+    J_loc = torch.cat([terms.J_rel, terms.J_aff] + ([terms.J_rs] if rs else []), dim=-1) @ Q.unsqueeze(1)
     G = level.jac.reshape(level.num_frames, C, N).transpose(1, 2)  # (F, N, C)
-    loc = [(0, 6), (6, 12), (12, 14)]
     for p, (a, b) in enumerate(pairs.tolist()):
-        for (i0, i1), bid in zip(loc, [BlockId(POSE, a), BlockId(POSE, b), BlockId(AFFINE, p)]):
+        for bid, i0, i1 in _local_blocks(a, b, p, rs):
             sl = layout.slice(bid)
             if sl is not None:
                 J[p, :, :, sl] += J_loc[p, :, :, i0:i1]

@@ -43,7 +43,7 @@ from codeslam.geometry.image import bilinear_sample, image_gradients, inside_ima
 from codeslam.geometry.proximity import d_depth_d_prox, d_prox_d_depth, depth_to_prox, prox_to_depth
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import LevelData
-from codeslam.sfm.warp import pose_row, relative_pose, warp
+from codeslam.sfm.warp import pose_row, relative_pose, rolling_shutter_rows, warp, warp_rolling_shutter
 
 PHOTOMETRIC, GEOMETRIC = "photometric", "geometric"
 
@@ -76,6 +76,21 @@ class PairEvaluation:
     dgeo_dz: torch.Tensor
     dgeo_dprox_B: torch.Tensor
     v: torch.Tensor
+    rs: RollingShutterWarp | None = None
+
+
+@dataclass
+class RollingShutterWarp:
+    """What the rolling-shutter rows of :func:`pair_jacobians` reuse (see
+    :func:`~codeslam.sfm.warp.warp_rolling_shutter`): x_c (P, N, 3) the point in B's mid-readout frame, ray0
+    (P, N, 3) A's unrotated ray, depth_A (P, N), omega_B (P, 1, 3), s_A, s_B (P, N) readout fractions."""
+
+    x_c: torch.Tensor
+    ray0: torch.Tensor
+    depth_A: torch.Tensor
+    omega_B: torch.Tensor
+    s_A: torch.Tensor
+    s_B: torch.Tensor
 
 
 @dataclass
@@ -86,7 +101,7 @@ class PairTerms:
     cost of each pair. J_rel (P, T, N, 6): d r / d xi_BA (left perturbation of T_BA). J_aff (P, T, N, 2):
     d r / d (a, b). s_A (P, T, N): d r / d c_A = s_A J_A[u]. s_B (P, T, N): d r / d c_B = s_B JB_w^T.
     JB_w: per pair a (C, N) view of J_B sampled at v (None without geometric residuals or when no code of B is
-    free).
+    free). J_rs (P, T, N, 6): d r / d (omega_A, omega_B), the readout rotations (None without that model).
     """
 
     types: tuple[str, ...]
@@ -98,6 +113,7 @@ class PairTerms:
     s_A: torch.Tensor
     s_B: torch.Tensor
     JB_w: list[torch.Tensor] | None
+    J_rs: torch.Tensor | None = None
 
 
 def interpolant_gradient(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
@@ -171,6 +187,7 @@ def evaluate_pairs(
     cfg: SfMConfig,
     with_gradients: bool = True,
     sampler: Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]] = bilinear_sample,
+    rs: torch.Tensor | None = None,
 ) -> PairEvaluation:
     """Residuals of every pair (differentiable in poses, codes and affine; masks and weights are detached).
 
@@ -178,7 +195,8 @@ def evaluate_pairs(
     affine (P, 2) (log-gain, bias) or None for no brightness correction. ``with_gradients`` also samples the
     image/proximity gradients of B at v (needed by :func:`pair_jacobians`). ``sampler`` is the bilinear lookup
     (img (B, C, H, W), uv (B, N, 2)) -> (values (B, C, N), valid), by default
-    :func:`~codeslam.geometry.image.bilinear_sample`.
+    :func:`~codeslam.geometry.image.bilinear_sample`. ``rs`` (F, 3): every frame's rotation over its readout, for
+    the rolling-shutter warp (:func:`~codeslam.sfm.warp.warp_rolling_shutter`); None for global shutters.
     """
     types = cfg.residual_types
     P = pairs.shape[0]
@@ -191,7 +209,14 @@ def evaluate_pairs(
     d_A = depth[iA].reshape(P, -1)  # (P, N), D_A[u]
     prox_A = prox[iA].reshape(P, -1)
     uv = level.uv.expand(P, -1, -1)  # (P, N, 2)
-    v, x_B, ray_A = warp(uv, d_A, T_BA, level.params[iA][:, None], level.params[iB][:, None])  # Eq. 5
+    rs_warp = None
+    if rs is None:
+        v, x_B, ray_A = warp(uv, d_A, T_BA, level.params[iA][:, None], level.params[iB][:, None])  # Eq. 5
+    else:
+        omega_A, omega_B = rs[iA][:, None].to(prox.dtype), rs[iB][:, None].to(prox.dtype)  # (P, 1, 3)
+        v, x_B, x_c, ray_A, ray0, s_A, s_B = warp_rolling_shutter(
+            uv, d_A, T_BA, level.params[iA][:, None], level.params[iB][:, None], omega_A, omega_B, H)
+        rs_warp = RollingShutterWarp(x_c, ray0, d_A, omega_B, s_A, s_B)
     z = x_B[..., 2]
 
     # (i) masks: inside B (minus the border), in front of B, valid depth of A.
@@ -294,6 +319,7 @@ def evaluate_pairs(
         dgeo_dz=dgeo_dz,
         dgeo_dprox_B=dgeo_dprox_B,
         v=v_safe,
+        rs=rs_warp,
     )
 
 
@@ -318,7 +344,8 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
     dpi = project_jac(ev.x_B, level.params[iB][:, None])  # (P, N, 2, 3), d pi / d x
     dx_dd = ev.ray_A @ ev.T_BA[:, :3, :3].transpose(1, 2)  # Eq. 9: R d pi^-1 / d d, (P, N, 3)
     e_z = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=ev.r.device)
-    J_rel, J_aff, s_A, s_B = [], [], [], []
+    J_rel, J_aff, s_A, s_B, J_rs = [], [], [], [], []
+    x_pose = ev.x_B if ev.rs is None else ev.rs.x_c  # the point the relative pose moves
     zeros = torch.zeros(P, N, dtype=dtype, device=ev.r.device)
     for t in ev.types:
         if t == PHOTOMETRIC:
@@ -332,7 +359,12 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
                 ev.grad_prox_B.unsqueeze(-1) * dpi).sum(-2)
             J_aff.append(torch.zeros(P, N, 2, dtype=dtype, device=ev.r.device))
             s_B.append(-ev.dgeo_dprox_B)  # d r_geo / d c_B = -df/dP J_B[v]
-        J_rel.append(pose_row(dr_dx, ev.x_B, ev.T_BA))  # Eqs. 7-8 in SE(3) left form, (P, N, 6)
+        if ev.rs is not None:  # through B's readout rotation to x_c, and the rows of omega_A, omega_B
+            rw = ev.rs
+            dr_dx, dr_dwA, dr_dwB = rolling_shutter_rows(dr_dx, rw.x_c, rw.ray0, rw.depth_A, ev.T_BA, rw.omega_B,
+                                                         rw.s_A, rw.s_B)
+            J_rs.append(torch.cat([dr_dwA, dr_dwB], dim=-1))
+        J_rel.append(pose_row(dr_dx, x_pose, ev.T_BA))  # Eqs. 7-8 in SE(3) left form, (P, N, 6)
         s_A.append((dr_dx * dx_dd).sum(-1) * ev.dd_dprox_A)  # Eq. 9 with dD_A/dc_A = dD/dP J_A[u]
     valid = ev.valid
     zero = torch.zeros((), dtype=dtype, device=ev.r.device)
@@ -349,4 +381,5 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
         s_A=torch.where(valid, torch.stack(s_A, dim=1), zero),
         s_B=torch.where(valid, torch.stack(s_B, dim=1), zero),
         JB_w=JB_w,
+        J_rs=torch.where(valid[..., None], torch.stack(J_rs, dim=1), zero) if J_rs else None,
     )

@@ -27,7 +27,7 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, LevelData, build_levels
 from codeslam.sfm.normal_equations import assemble
 from codeslam.sfm.residuals import PairEvaluation, evaluate_pairs, pair_jacobians, robust_weights
-from codeslam.sfm.variables import AFFINE, CODE, BlockId, LinearPrior, SfMState, VariableLayout
+from codeslam.sfm.variables import AFFINE, CODE, RS, RS_DIM, BlockId, LinearPrior, SfMState, VariableLayout
 
 
 def _sync(device: torch.device) -> None:
@@ -37,7 +37,7 @@ def _sync(device: torch.device) -> None:
 
 class PairProblem:
     """The cost of one pyramid level: robust pair residuals + the VAE code prior ``0.5 w |c|^2`` + the affine
-    prior + optional linear priors.
+    prior (+ the readout-rotation prior with ``cfg.rolling_shutter``) + optional linear priors.
 
     level: stacked keyframes; pairs (P, 2) long (A, B); cfg: residual/loss settings and prior weights.
     """
@@ -56,13 +56,16 @@ class PairProblem:
         if cfg.affine_brightness:
             sig = state.affine.new_tensor(cfg.affine_prior_sigma)
             cost = cost + 0.5 * (state.affine / sig).square().sum()
+        if cfg.rolling_shutter and state.rs is not None:
+            cost = cost + 0.5 * (state.rs / cfg.rolling_shutter_sigma).square().sum()
         for prior in self.priors:
             cost = cost + prior.cost(state).to(cost.dtype)
         return cost
 
     def evaluate(self, state: SfMState) -> tuple[float, PairEvaluation]:
         affine = state.affine if self.cfg.affine_brightness else None
-        ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg)
+        rs = state.rs if self.cfg.rolling_shutter else None  # None: a state without readout rotations
+        ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg, rs=rs)
         _, pair_cost = robust_weights(ev)
         return float(pair_cost.sum() + self._prior_cost(state)), ev
 
@@ -81,6 +84,10 @@ class PairProblem:
                 inv_var = 1.0 / H.new_tensor(cfg.affine_prior_sigma) ** 2
                 H[sl, sl] += torch.diag(inv_var)
                 g[sl] += inv_var * state.affine[b.index].to(g.dtype)
+            elif b.kind == RS:
+                inv_var = 1.0 / cfg.rolling_shutter_sigma**2
+                H[sl, sl] += inv_var * torch.eye(RS_DIM, dtype=H.dtype, device=H.device)
+                g[sl] += inv_var * state.rs[b.index].to(g.dtype)
         for prior in self.priors:
             prior.add_to(H, g, layout, state)
         return H, g
@@ -186,8 +193,9 @@ def levenberg_marquardt(
 @dataclass
 class SfMResult:
     """Result of :func:`sfm`. poses (F, 4, 4) T_wc; codes (F, C); affine (P, 2) (log-gain, bias) per pair;
-    pairs (P, 2); levels: one :class:`LMReport` per visited pyramid level (coarse to fine); iterations and
-    ms_per_iteration over all levels; total_ms the wall time of the whole optimisation."""
+    rs (F, 3) readout rotations (None without ``rolling_shutter``); pairs (P, 2); levels: one :class:`LMReport`
+    per visited pyramid level (coarse to fine); iterations and ms_per_iteration over all levels; total_ms the wall
+    time of the whole optimisation."""
 
     poses: torch.Tensor
     codes: torch.Tensor
@@ -197,6 +205,7 @@ class SfMResult:
     iterations: int
     ms_per_iteration: float
     total_ms: float
+    rs: torch.Tensor | None = None
 
     @property
     def costs(self) -> list[float]:
@@ -248,9 +257,11 @@ def sfm(
     if poses.shape != (F_, 4, 4) or codes.shape != (F_, C):
         raise CodeSLAMError(f"initial poses/codes must be ({F_}, 4, 4) and ({F_}, {C})")
     state = SfMState(poses.to(dtype=dtype, device=device).clone(), codes.to(dtype=dtype, device=device).clone(),
-                     torch.zeros(pair_t.shape[0], 2, dtype=dtype, device=device))
+                     torch.zeros(pair_t.shape[0], 2, dtype=dtype, device=device),
+                     torch.zeros(F_, RS_DIM, dtype=dtype, device=device) if cfg.rolling_shutter else None)
     no_depth = [BlockId(CODE, i) for i, kf in enumerate(keyframes) if kf.decoder is None]  # codes with no effect
-    layout = VariableLayout.for_sfm(F_, C, pair_t.shape[0], cfg.affine_brightness, [*fixed, *no_depth])
+    layout = VariableLayout.for_sfm(F_, C, pair_t.shape[0], cfg.affine_brightness, [*fixed, *no_depth],
+                                    rolling_shutter=cfg.rolling_shutter)
     reports = []
     t0 = time.perf_counter()
     for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
@@ -263,5 +274,5 @@ def sfm(
     step_ms = [ms for _, r in reports for ms in r.step_ms]
     return SfMResult(
         poses=state.poses, codes=state.codes, affine=state.affine, pairs=pair_t, levels=reports,
-        iterations=n_it, ms_per_iteration=sum(step_ms) / max(len(step_ms), 1), total_ms=total_ms,
+        iterations=n_it, ms_per_iteration=sum(step_ms) / max(len(step_ms), 1), total_ms=total_ms, rs=state.rs,
     )

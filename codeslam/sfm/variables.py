@@ -2,8 +2,9 @@
 the normal equations (:class:`VariableLayout`), and a linear prior on a subset of them (:class:`LinearPrior`,
 e.g. the result of marginalising old keyframes in a sliding window).
 
-Blocks: ``pose`` i (6, left increment of T_wc i, ``T <- exp(xi) T``), ``code`` i (C, additive) and ``affine``
-p (2: log-gain and bias of pair p, additive).
+Blocks: ``pose`` i (6, left increment of T_wc i, ``T <- exp(xi) T``), ``code`` i (C, additive), ``affine``
+p (2: log-gain and bias of pair p, additive) and, with a rolling-shutter model, ``rs`` i (3, additive: frame i's
+rotation over its readout, see :mod:`codeslam.sfm.residuals`).
 """
 
 from __future__ import annotations
@@ -16,13 +17,14 @@ import torch
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
 
-POSE, CODE, AFFINE = "pose", "code", "affine"
-POSE_DIM, AFFINE_DIM = 6, 2
+POSE, CODE, AFFINE, RS = "pose", "code", "affine", "rs"
+POSE_DIM, AFFINE_DIM, RS_DIM = 6, 2, 3
 
 
 @dataclass(frozen=True, order=True)
 class BlockId:
-    """A variable block: ``kind`` in (pose, code, affine) and the frame (pose, code) or pair (affine) index."""
+    """A variable block: ``kind`` in (pose, code, affine, rs) and the frame (pose, code, rs) or pair (affine)
+    index."""
 
     kind: str
     index: int
@@ -31,18 +33,21 @@ class BlockId:
 @dataclass
 class SfMState:
     """Values of all variables. poses (F, 4, 4) T_wc, codes (F, C), affine (P, 2) = (log-gain a, bias b) of the
-    brightness model ``I_A ~ exp(a) I_B + b`` of each pair."""
+    brightness model ``I_A ~ exp(a) I_B + b`` of each pair; rs (F, 3) each frame's rotation over its readout, or
+    None without a rolling-shutter model."""
 
     poses: torch.Tensor
     codes: torch.Tensor
     affine: torch.Tensor
+    rs: torch.Tensor | None = None
 
     def clone(self) -> SfMState:
-        return SfMState(self.poses.clone(), self.codes.clone(), self.affine.clone())
+        return SfMState(self.poses.clone(), self.codes.clone(), self.affine.clone(),
+                        None if self.rs is None else self.rs.clone())
 
     def block(self, b: BlockId) -> torch.Tensor:
-        """The value of one block: (4, 4) pose, (C,) code or (2,) affine."""
-        return {POSE: self.poses, CODE: self.codes, AFFINE: self.affine}[b.kind][b.index]
+        """The value of one block: (4, 4) pose, (C,) code, (2,) affine or (3,) rs."""
+        return {POSE: self.poses, CODE: self.codes, AFFINE: self.affine, RS: self.rs}[b.kind][b.index]
 
     def retract(self, layout: VariableLayout, delta: torch.Tensor) -> SfMState:
         """The state moved by ``delta`` (layout.dim,): ``T <- exp(xi) T`` for poses, ``+`` for the rest."""
@@ -53,6 +58,8 @@ class SfMState:
                 new.poses[b.index] = se3_exp(d) @ self.poses[b.index]
             elif b.kind == CODE:
                 new.codes[b.index] = self.codes[b.index] + d
+            elif b.kind == RS:
+                new.rs[b.index] = self.rs[b.index] + d
             else:
                 new.affine[b.index] = self.affine[b.index] + d
         return new
@@ -80,15 +87,18 @@ class VariableLayout:
 
     @classmethod
     def for_sfm(
-        cls, num_frames: int, code_size: int, num_pairs: int, affine: bool, fixed: Iterable[BlockId] = ()
+        cls, num_frames: int, code_size: int, num_pairs: int, affine: bool, fixed: Iterable[BlockId] = (),
+        rolling_shutter: bool = False,
     ) -> VariableLayout:
-        """Poses and codes of every frame and affine parameters of every pair (if ``affine``), minus ``fixed``
-        (e.g. ``[BlockId('pose', 0)]``, the gauge)."""
+        """Poses and codes of every frame, affine parameters of every pair (if ``affine``) and every frame's
+        readout rotation (if ``rolling_shutter``), minus ``fixed`` (e.g. ``[BlockId('pose', 0)]``, the gauge)."""
         fixed = set(fixed)
         blocks = [(BlockId(POSE, i), POSE_DIM) for i in range(num_frames)]
         blocks += [(BlockId(CODE, i), code_size) for i in range(num_frames)]
         if affine:
             blocks += [(BlockId(AFFINE, p), AFFINE_DIM) for p in range(num_pairs)]
+        if rolling_shutter:
+            blocks += [(BlockId(RS, i), RS_DIM) for i in range(num_frames)]
         return cls([(b, s) for b, s in blocks if b not in fixed])
 
     def __contains__(self, b: BlockId) -> bool:

@@ -47,6 +47,58 @@ def warp(
     return project(x_B, params_B), x_B, ray_A  # Eq. 5: v = pi(x)
 
 
+def readout_fraction(rows: torch.Tensor, height: int) -> torch.Tensor:
+    """The time at which a row was exposed, as a fraction of the readout from the middle row: ``s(y) = (y - (H -
+    1) / 2) / H`` in [-0.5, 0.5] (the same at every pyramid level)."""
+    return (rows - 0.5 * (height - 1)) / height
+
+
+def warp_rolling_shutter(
+    uv: torch.Tensor, depth_A: torch.Tensor, T_BA: torch.Tensor, params_A: torch.Tensor, params_B: torch.Tensor,
+    omega_A: torch.Tensor, omega_B: torch.Tensor, height: int,
+) -> tuple[torch.Tensor, ...]:
+    """Eq. 5 for rolling-shutter cameras: the camera that exposed row y of frame k is its pose turned by
+    ``s(y) omega_k`` (:func:`readout_fraction`; omega_k is the rotation over the whole readout in k's frame, a few
+    degrees at most, so the rotation is taken to first order, ``R(s) = I + s [omega]_x``; the translation during
+    the readout is neglected).
+
+    A's pixel u (row y_A) is the point ``X = d (ray + s_A omega_A x ray)`` in A's mid-readout frame, ``x_c =
+    T_BA X`` in B's; B sees it in the row it projects to, ``s_B`` taken from the global-shutter projection of
+    ``x_c`` (held fixed: one fixed-point step, the row moves by a fraction of a pixel), turned back by that row's
+    rotation: ``x_B = x_c - s_B omega_B x x_c``, ``v = pi(x_B)``.
+
+    uv (P, N, 2), depth_A (P, N), T_BA (P, 4, 4), params (P, 1, 4), omega_A / omega_B (P, 1, 3), height: rows of
+    both images -> v (P, N, 2), x_B, x_c, ray (the rotated ray, d x_c / d d = R ray), ray0 (A's unrotated ray),
+    (P, N, 3) each, and s_A, s_B (P, N).
+    """
+    ray0 = unproject_jac_depth(uv, params_A)  # (P, N, 3)
+    s_A = readout_fraction(uv[..., 1], height)
+    ray = ray0 + s_A.unsqueeze(-1) * torch.linalg.cross(omega_A.expand_as(ray0), ray0, dim=-1)
+    x_c = se3_act(T_BA, ray * depth_A.unsqueeze(-1))
+    s_B = readout_fraction(project(x_c, params_B)[..., 1], height).detach()
+    x_B = x_c - s_B.unsqueeze(-1) * torch.linalg.cross(omega_B.expand_as(x_c), x_c, dim=-1)
+    return project(x_B, params_B), x_B, x_c, ray, ray0, s_A, s_B
+
+
+def rolling_shutter_rows(
+    dr_dx: torch.Tensor, x_c: torch.Tensor, ray0: torch.Tensor, depth_A: torch.Tensor, T_BA: torch.Tensor,
+    omega_B: torch.Tensor, s_A: torch.Tensor, s_B: torch.Tensor,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Chain rule through :func:`warp_rolling_shutter` for a scalar residual with ``dr_dx`` = d r / d x_B
+    (P, N, 3) -> d r / d x_c (P, N, 3) (what the pose and depth rows use), d r / d omega_A and d r / d omega_B
+    (P, N, 3 each).
+
+    ``d x_B / d x_c = I - s_B [omega_B]_x`` gives the row ``a - s_B (a x omega_B)``; ``d x_B / d omega_B = s_B
+    [x_c]_x`` gives ``s_B (a x x_c)``; ``d x_c / d omega_A = -d s_A R [ray0]_x`` gives ``-d s_A ((R^T a_c) x
+    ray0)`` (for a row b, ``b [y]_x = (b x y)^T``).
+    """
+    dr_dxc = dr_dx - s_B.unsqueeze(-1) * torch.linalg.cross(dr_dx, omega_B.expand_as(dr_dx), dim=-1)
+    dr_dwB = s_B.unsqueeze(-1) * torch.linalg.cross(dr_dx, x_c, dim=-1)
+    aR = dr_dxc @ T_BA[..., :3, :3]  # the row a_c R, (P, N, 3)
+    dr_dwA = -(depth_A * s_A).unsqueeze(-1) * torch.linalg.cross(aR, ray0, dim=-1)
+    return dr_dxc, dr_dwA, dr_dwB
+
+
 def point_jacobians(x_B: torch.Tensor, ray_A: torch.Tensor, T_BA: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Jacobians of the warped point ``x = R_BA d ray + t_BA`` (P, N, 3).
 

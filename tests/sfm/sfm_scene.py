@@ -56,20 +56,42 @@ def render(
     return texture(X), best
 
 
+def render_rolling_shutter(
+    T_wc: torch.Tensor, params: torch.Tensor, height: int, width: int, omega: torch.Tensor, panel: bool = True
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`render` by a rolling-shutter camera: row y is exposed by the camera turned by s(y) omega about its
+    own centre (omega (3,), rotation vector over the readout in the camera frame, s(y) = (y - (H - 1) / 2) / H),
+    exactly (not to first order). -> grey (H, W), z-depth (H, W) in each row's own camera."""
+    from codeslam.geometry.lie import so3_exp
+
+    gray = torch.empty(height, width, dtype=torch.float64)
+    depth = torch.empty_like(gray)
+    for y in range(height):
+        T_row = T_wc.clone().double()
+        T_row[:3, :3] = T_row[:3, :3] @ so3_exp(((y - 0.5 * (height - 1)) / height) * omega.double())
+        g, d = render(T_row, params, height, width, panel)
+        gray[y], depth[y] = g[y], d[y]
+    return gray, depth
+
+
 def look_pose(t=(0.0, 0.0, 0.0), rot=(0.0, 0.0, 0.0)) -> torch.Tensor:
     """T_wc = exp((t, rot)) (float64)."""
     return se3_exp(torch.tensor([*t, *rot], dtype=torch.float64))
 
 
 def make_frames(poses, width=64, height=48, code_size=8, levels=4, seed=0, code_scale=1.0, avg_depth=2.0,
-                panel=True):
+                panel=True, readout=None):
     """Frames of the room at the T_wc ``poses`` with stand-in decoders whose span contains the true proximity:
-    -> (keyframes, gt_codes (F, C), gt_poses (F, 4, 4))."""
+    -> (keyframes, gt_codes (F, C), gt_poses (F, 4, 4)). ``readout`` (F, 3): rolling-shutter rotations of the
+    frames (:func:`render_rolling_shutter`), None for global shutters."""
     cam = canonical_camera(width, height)
     gen = torch.Generator().manual_seed(seed)
     kfs, codes = [], []
-    for T in poses:
-        gray, depth = render(T, cam.params(torch.float64), height, width, panel)
+    for k, T in enumerate(poses):
+        if readout is None:
+            gray, depth = render(T, cam.params(torch.float64), height, width, panel)
+        else:
+            gray, depth = render_rolling_shutter(T, cam.params(torch.float64), height, width, readout[k], panel)
         c = code_scale * torch.randn(code_size, generator=gen, dtype=torch.float64)
         dec = standin_decoder(depth_to_prox(depth, avg_depth), code_size, levels, avg_depth, code_offset=c,
                               image=gray)

@@ -13,7 +13,7 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import build_levels
 from codeslam.sfm.normal_equations import assemble, dense_jacobian
 from codeslam.sfm.residuals import evaluate_pairs, pair_jacobians
-from codeslam.sfm.variables import AFFINE, CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
+from codeslam.sfm.variables import AFFINE, CODE, POSE, RS, BlockId, LinearPrior, SfMState, VariableLayout
 
 D = torch.float64
 PAIRS = torch.tensor([[0, 1], [1, 0], [0, 2], [2, 1], [2, 0]])  # frame 0 is A twice: its weights are pooled
@@ -57,6 +57,25 @@ def test_structured_assembly_equals_dense_jacobian_products(problem, name, types
     assert (H - H_ref).abs().max() < 1e-11 * scale
     assert (g - g_ref).abs().max() < 1e-11 * g_ref.abs().max()
     torch.testing.assert_close(H, H.T, rtol=0, atol=1e-11 * float(scale))
+
+
+def test_rolling_shutter_assembly_equals_dense_jacobian_products_and_autograd(problem):
+    level, state = problem
+    g = torch.Generator().manual_seed(3)
+    state = SfMState(state.poses, state.codes, state.affine, 0.03 * torch.randn(3, 3, generator=g, dtype=D))
+    cfg = SfMConfig(gradient_mode="interpolant", rolling_shutter=True)
+    layout = VariableLayout.for_sfm(3, 6, 5, True, fixed=[BlockId(POSE, 0), BlockId(RS, 1)], rolling_shutter=True)
+    ev = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cfg, rs=state.rs)
+    terms = pair_jacobians(level, PAIRS, ev)
+    H, g = assemble(terms, PAIRS, state.poses, level, layout)
+    J = dense_jacobian(terms, PAIRS, state.poses, level, layout)
+    w, r = terms.w.reshape(-1), terms.r.reshape(-1)
+    H_ref, g_ref = J.T @ (w[:, None] * J), J.T @ (w * r)
+    assert (H - H_ref).abs().max() < 1e-11 * H_ref.abs().max()
+    assert (g - g_ref).abs().max() < 1e-11 * g_ref.abs().max()
+    H_ad, g_ad = autodiff_normal_equations(level, PAIRS, state, layout, cfg)
+    assert (H - H_ad).abs().max() < 1e-10 * H_ad.abs().max()
+    assert (g - g_ad).abs().max() < 1e-10 * g_ad.abs().max()
 
 
 def test_analytic_normal_equations_equal_autograd_ones(problem):

@@ -94,6 +94,59 @@ def test_compact_jacobians_match_autograd_for_every_block(problem, types):
         assert err < 1e-10, (b, float(err))
 
 
+def _with_rs(state, seed=7, scale=0.04):
+    g = torch.Generator().manual_seed(seed)
+    rs = scale * torch.randn(state.poses.shape[0], 3, generator=g, dtype=D)
+    return SfMState(state.poses, state.codes, state.affine, rs)
+
+
+@pytest.mark.parametrize("types", [dict(), dict(geometric=False), dict(photometric=False)])
+def test_rolling_shutter_jacobians_match_autograd_for_every_block(problem, types):
+    level, state = problem
+    state = _with_rs(state)  # readout rotations of about 2 degrees, so every term of the chain rule is exercised
+    cfg = SfMConfig(gradient_mode="interpolant", rolling_shutter=True, **types)
+    layout = VariableLayout.for_sfm(3, 5, 4, True, rolling_shutter=True)
+    ev = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cfg, rs=state.rs)
+    terms = pair_jacobians(level, PAIRS, ev)
+    J = dense_jacobian(terms, PAIRS, state.poses, level, layout)
+    J_ref = autodiff_jacobian(level, PAIRS, state, layout, cfg)
+    for b, sl in layout.slices():
+        scale = J_ref[:, sl].abs().max().clamp_min(1e-12)
+        assert scale > 1e-6 or (b.kind == AFFINE and not cfg.photometric), b  # the readout rotations move some
+        err = (J[:, sl] - J_ref[:, sl]).abs().max() / scale
+        assert err < 1e-10, (b, float(err))
+
+
+def test_zero_readout_rotation_is_the_global_shutter_warp(problem):
+    level, state = problem
+    cfg = SfMConfig()
+    ev = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cfg)
+    ev_rs = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cfg,
+                           rs=torch.zeros(3, 3, dtype=D))
+    torch.testing.assert_close(ev_rs.r, ev.r, rtol=0, atol=1e-12)
+    torch.testing.assert_close(ev_rs.v, ev.v, rtol=0, atol=1e-12)
+
+
+def test_readout_rotation_shifts_rows_in_proportion_to_their_readout_time(problem):
+    # Frame B turned about its y axis during the readout: a point seen in B's middle row does not move, points
+    # in the top and bottom rows move sideways by opposite amounts (first order: fx * s * omega_y).
+    from codeslam.sfm.warp import warp_rolling_shutter
+
+    H = 24
+    params = torch.tensor([30.0, 30.0, 15.5, 11.5], dtype=D).reshape(1, 1, 4)
+    rows = torch.tensor([0.0, 11.5, 23.0], dtype=D)
+    uv = torch.stack([torch.full_like(rows, 15.5), rows], -1)[None]
+    T = torch.eye(4, dtype=D)[None]
+    zero = torch.zeros(1, 1, 3, dtype=D)
+    omega = torch.tensor([0.0, 0.02, 0.0], dtype=D).reshape(1, 1, 3)
+    v0 = warp_rolling_shutter(uv, torch.ones(1, 3, dtype=D), T, params, params, zero, zero, H)[0]
+    v = warp_rolling_shutter(uv, torch.ones(1, 3, dtype=D), T, params, params, zero, omega, H)[0]
+    du = (v - v0)[0, :, 0]
+    s = (rows - 11.5) / H
+    torch.testing.assert_close(du, -30.0 * s * 0.02, rtol=1e-3, atol=1e-9)
+    assert abs(float(du[1])) < 1e-12
+
+
 def test_relative_pose_jacobian_is_the_left_perturbation_of_T_BA(problem):
     """With B at the identity, xi_A perturbs T_BA = T_wA on the left: J_rel must equal d r / d xi_A."""
     level, state = problem
