@@ -104,6 +104,7 @@ def sfm_command(
         load_ms=1e3 * (t1 - t0), network_ms=1e3 * (t2 - t1),
         levels=[{"level": lvl, "iterations": r.iterations, "accepted": r.accepted, "reason": r.reason,
                  "cost_initial": r.costs[0], "cost_final": r.costs[-1]} for lvl, r in result.levels],
+        readout_rotation_rad=None if result.rs is None else result.rs.detach().cpu().double().tolist(),
     )
     if out is not None:
         _write_outputs(out, model, cframes, keyframes, depths, result, cfg, fusion_cfg, results)

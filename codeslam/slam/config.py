@@ -131,6 +131,8 @@ class WindowConfig:
             raise ConfigError(f"window.size must be >= 2 (the initialisation needs two keyframes), got {self.size}")
         if not 0.0 <= self.min_pair_overlap <= 1.0:
             raise ConfigError(f"window.min_pair_overlap must lie in [0, 1], got {self.min_pair_overlap}")
+        if self.sfm.rolling_shutter:  # the window's marginalisation and the tracker have no readout rotations
+            raise ConfigError("window.sfm.rolling_shutter is supported by `codeslam sfm` only, not in SLAM")
 
 
 @dataclass(frozen=True)

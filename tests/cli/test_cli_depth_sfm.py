@@ -5,6 +5,7 @@ no output."""
 from __future__ import annotations
 
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -123,6 +124,15 @@ def test_sfm_cli_writes_depth_poses_cloud_panel_and_metrics(work, tmp_path: Path
     assert np.isfinite(xyz).all()
     assert (out / "panel.png").is_file() and (out / "sfm_config.yaml").is_file()
     assert "max_iterations" in (out / "sfm_config.yaml").read_text()
+
+
+def test_sfm_cli_rolling_shutter_config_reports_the_readout_rotations(work, tmp_path: Path):
+    cfg, js = tmp_path / "rs.yaml", tmp_path / "s.json"
+    cfg.write_text(SFM_FAST + "rolling_shutter: true\n")
+    assert main(["sfm", str(work["seq"]), "--frames", "1,3,4", "--weights", str(work["weights"]),
+                 "--config", str(cfg), "--json", str(js), "--threads", "1"]) == 0
+    rs = json.loads(js.read_text())["readout_rotation_rad"]
+    assert len(rs) == 3 and all(len(r) == 3 and all(math.isfinite(x) for x in r) for r in rs)
 
 
 def test_sfm_cli_all_pairs_without_outputs(work, tmp_path: Path):

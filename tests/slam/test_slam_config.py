@@ -74,3 +74,10 @@ def test_empty_file_gives_the_defaults(tmp_path):
     path.write_text("")
     assert load_config(path) == SLAMConfig()
     assert WindowConfig().size == 4
+
+
+def test_the_rolling_shutter_model_is_refused_in_the_slam_window(tmp_path):
+    path = tmp_path / "slam.yaml"
+    path.write_text("window:\n  sfm:\n    rolling_shutter: true\n")
+    with pytest.raises(ConfigError, match="rolling_shutter is supported by `codeslam sfm` only"):
+        load_config(path)
