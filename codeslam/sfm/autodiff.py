@@ -44,30 +44,29 @@ def bilinear_sample_gather(img: torch.Tensor, uv: torch.Tensor) -> tuple[torch.T
     return out, inside_image(uv, H, W)
 
 
+def _shifted(values: torch.Tensor | None, kind: str, layout: VariableLayout, delta: torch.Tensor):
+    """The rows of an additive block kind (codes, affine, rs) moved by their slices of ``delta``, without in-place
+    writes; rows whose block is not free, and an empty or absent tensor, stay as they are."""
+    if values is None or values.shape[0] == 0:
+        return values
+    rows = []
+    for i in range(values.shape[0]):
+        sl = layout.slice(BlockId(kind, i))
+        rows.append(values[i] if sl is None else values[i] + delta[sl])
+    return torch.stack(rows)
+
+
 def retract_differentiable(state: SfMState, layout: VariableLayout, delta: torch.Tensor) -> SfMState:
     """:meth:`SfMState.retract` without in-place writes (so it can be differentiated and vmapped)."""
-    poses, codes, affine = [], [], []
+    poses = []
     dt = state.poses.dtype
     for i in range(state.poses.shape[0]):
         sl = layout.slice(BlockId(POSE, i))
         # exp in float64: torch's forward-mode AD through lie.se3_exp returns float64 tangents for float32
         # inputs (seen with torch 2.13), which then clash with the float32 pose.
         poses.append(state.poses[i] if sl is None else se3_exp(delta[sl].double()).to(dt) @ state.poses[i])
-    for i in range(state.codes.shape[0]):
-        sl = layout.slice(BlockId(CODE, i))
-        codes.append(state.codes[i] if sl is None else state.codes[i] + delta[sl])
-    for p in range(state.affine.shape[0]):
-        sl = layout.slice(BlockId(AFFINE, p))
-        affine.append(state.affine[p] if sl is None else state.affine[p] + delta[sl])
-    aff = torch.stack(affine) if affine else state.affine
-    rs = state.rs
-    if rs is not None:
-        rows = []
-        for i in range(rs.shape[0]):
-            sl = layout.slice(BlockId(RS, i))
-            rows.append(rs[i] if sl is None else rs[i] + delta[sl])
-        rs = torch.stack(rows)
-    return SfMState(torch.stack(poses), torch.stack(codes), aff, rs)
+    return SfMState(torch.stack(poses), _shifted(state.codes, CODE, layout, delta),
+                    _shifted(state.affine, AFFINE, layout, delta), _shifted(state.rs, RS, layout, delta))
 
 
 def _evaluate(level: LevelData, pairs: torch.Tensor, state: SfMState, cfg: SfMConfig):
