@@ -71,8 +71,8 @@ def retract_differentiable(state: SfMState, layout: VariableLayout, delta: torch
 
 def _evaluate(level: LevelData, pairs: torch.Tensor, state: SfMState, cfg: SfMConfig):
     affine = state.affine if cfg.affine_brightness else None
-    rs = state.rs if cfg.rolling_shutter else None
-    return evaluate_pairs(level, pairs, state.poses, state.codes, affine, cfg, False, bilinear_sample_gather, rs=rs)
+    return evaluate_pairs(level, pairs, state.poses, state.codes, affine, cfg, False, bilinear_sample_gather,
+                          rs=state.rs)
 
 
 def weighted_residual_fn(

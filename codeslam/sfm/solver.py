@@ -56,7 +56,7 @@ class PairProblem:
         if cfg.affine_brightness:
             sig = state.affine.new_tensor(cfg.affine_prior_sigma)
             cost = cost + 0.5 * (state.affine / sig).square().sum()
-        if cfg.rolling_shutter and state.rs is not None:
+        if state.rs is not None:  # the state has readout rotations only with cfg.rolling_shutter (see sfm)
             cost = cost + 0.5 * (state.rs / cfg.rolling_shutter_sigma).square().sum()
         for prior in self.priors:
             cost = cost + prior.cost(state).to(cost.dtype)
@@ -64,8 +64,7 @@ class PairProblem:
 
     def evaluate(self, state: SfMState) -> tuple[float, PairEvaluation]:
         affine = state.affine if self.cfg.affine_brightness else None
-        rs = state.rs if self.cfg.rolling_shutter else None  # None: a state without readout rotations
-        ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg, rs=rs)
+        ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg, rs=state.rs)
         _, pair_cost = robust_weights(ev)
         return float(pair_cost.sum() + self._prior_cost(state)), ev
 
