@@ -53,21 +53,21 @@ def band_shifts(model: DepthModel, seq, a: int, b: int, bands: int, max_shift: f
     ok = (depth > 0) & (v[..., 0] > margin) & (v[..., 0] < W - 1 - margin) & (v[..., 1] > margin) & (
         v[..., 1] < H - 1 - margin)
     grid = np.arange(-max_shift, max_shift + 1e-9, step)
-    shifts = []
-    for k in range(bands):
-        in_band = ok & (uv[..., 1] >= k * H / bands) & (uv[..., 1] < (k + 1) * H / bands)
-        if int(in_band.sum()) < 20:
-            shifts.append((float("nan"), float("nan")))
-            continue
-        best = (float("inf"), 0.0, 0.0)
-        for dx in grid:
-            for dy in grid:
-                sampled, _ = bilinear_sample(gray_b, v + v.new_tensor([dx, dy]))
-                r = (gray_a - sampled[:, 0])[in_band]
+    band_masks = [ok & (uv[..., 1] >= k * H / bands) & (uv[..., 1] < (k + 1) * H / bands) for k in range(bands)]
+    band_masks = [m if int(m.sum()) >= 20 else None for m in band_masks]  # too few pixels to align: stays NaN
+    best = [(float("inf"), float("nan"), float("nan"))] * bands
+    for dx in grid:
+        for dy in grid:
+            sampled, _ = bilinear_sample(gray_b, v + v.new_tensor([dx, dy]))  # one lookup serves every band
+            r_all = gray_a - sampled[:, 0]
+            for k, in_band in enumerate(band_masks):
+                if in_band is None:
+                    continue
+                r = r_all[in_band]
                 cost = float((r - r.mean()).abs().mean())
-                if cost < best[0]:
-                    best = (cost, float(dx), float(dy))
-        shifts.append(best[1:])
+                if cost < best[k][0]:
+                    best[k] = (cost, float(dx), float(dy))
+    shifts = [b[1:] for b in best]
     return {"mean_flow_px": float((v - uv).norm(dim=-1)[ok].mean()), "shifts": shifts}
 
 
