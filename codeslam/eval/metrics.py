@@ -22,12 +22,13 @@ from dataclasses import dataclass, fields
 from typing import Literal
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+import torch
 
 from codeslam.constants import UMEYAMA_RANK_RTOL
 from codeslam.errors import CodeSLAMError
 from codeslam.eval.association import associate
 from codeslam.eval.trajectory import Trajectory
+from codeslam.geometry.lie import so3_log
 
 Align = Literal["se3", "sim3", "none"]
 ALIGN_MODES = ("se3", "sim3", "none")
@@ -154,9 +155,9 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> Sim3:
 
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotations -> (...,) rotation angle in radians (norm of the SO(3) logarithm)."""
-    flat = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
-    # scipy's quaternion route is accurate at small and large angles alike (arccos of the trace is not).
-    return Rotation.from_matrix(flat).magnitude().reshape(np.shape(R)[:-2])
+    R64 = torch.as_tensor(np.asarray(R, dtype=np.float64))
+    # so3_log goes through the quaternion: accurate at small and large angles alike (arccos of the trace is not).
+    return so3_log(R64).norm(dim=-1).numpy()
 
 
 def relative_poses(T: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
