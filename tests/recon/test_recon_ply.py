@@ -1,4 +1,6 @@
-"""PLY output: plyfile reads what we write (binary and ASCII), values survive, bad input leaves no file."""
+"""PLY files: plyfile (an independent implementation, test-only) reads what we write and we read what it writes
+(binary of either byte order and ASCII, other elements and properties beside the vertices); values survive, bad
+input leaves no file."""
 
 from __future__ import annotations
 
@@ -7,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from plyfile import PlyData
+from plyfile import PlyData, PlyElement
 
 from codeslam.errors import DatasetError
 from codeslam.recon.fusion import PointCloud
@@ -36,6 +38,22 @@ def test_round_trip_through_plyfile(tmp_path: Path, text: bool):
     assert torch.equal(back.rgb, cloud.rgb)
 
 
+@pytest.mark.parametrize("text", [False, True])
+@pytest.mark.parametrize("byte_order", ["<", ">"])
+def test_reads_what_plyfile_writes(tmp_path: Path, text: bool, byte_order: str):
+    """Another writer's layout: an element before the vertices, double positions, an extra vertex property."""
+    vertex = np.array([(1.5, 2.25, -3.0, 255, 0, 7, 0.5), (0.1, 0.2, 0.3, 1, 2, 3, 0.0)],
+                      dtype=[("x", "f8"), ("y", "f4"), ("z", "f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                             ("nx", "f4")])
+    camera = np.array([(1, 2)], dtype=[("a", "i4"), ("b", "i2")])
+    path = tmp_path / "other.ply"
+    PlyData([PlyElement.describe(camera, "camera"), PlyElement.describe(vertex, "vertex")], text=text,
+            byte_order=byte_order).write(str(path))
+    back = read_ply(path)
+    np.testing.assert_array_equal(back.xyz.numpy(), np.stack([vertex[c] for c in "xyz"], 1).astype(np.float32))
+    np.testing.assert_array_equal(back.rgb.numpy(), np.stack([vertex[c] for c in ("red", "green", "blue")], 1))
+
+
 def test_empty_cloud_is_a_valid_file(tmp_path: Path):
     write_ply(tmp_path / "e.ply", PointCloud.concat([]))
     assert PlyData.read(str(tmp_path / "e.ply"))["vertex"].count == 0
@@ -47,7 +65,16 @@ def test_bad_cloud_writes_nothing(tmp_path: Path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_read_ply_reports_garbage(tmp_path: Path):
-    (tmp_path / "x.ply").write_text("not a ply file")
-    with pytest.raises(DatasetError):
+HEADER = "ply\nformat {} 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+
+
+@pytest.mark.parametrize("content", [
+    "not a ply file", "", "ply\nformat ascii 1.0\nelement vertex 1\n",  # no magic, empty, no end_header
+    HEADER.format("ascii") + "1 2 3\n4 5\n", HEADER.format("ascii") + "1 2 3\na b c\n",  # short row, not numbers
+    HEADER.format("binary_little_endian") + "123",  # truncated
+    HEADER.format("ascii").replace("x\n", "x\nproperty list uchar int vertex_indices\n"),  # faces
+])
+def test_read_ply_reports_garbage(tmp_path: Path, content: str):
+    (tmp_path / "x.ply").write_text(content)
+    with pytest.raises(DatasetError, match="cannot read point cloud"):
         read_ply(tmp_path / "x.ply")
