@@ -1,0 +1,90 @@
+"""Sparse features: ORB keypoints on generator frames, matching (plain and guided by a predicted pose), 3D points
+from a keyframe's depth and PnP with RANSAC recover the true relative pose of a wide baseline."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from slam_scene import synth_frames
+
+from codeslam.geometry.camera import canonical_camera
+from codeslam.geometry.lie import se3_inverse
+from codeslam.slam.features import (
+    ORBExtractor,
+    guided_mask,
+    keyframe_points,
+    match,
+    pose_distance,
+    project_points,
+    scaled_camera,
+    solve_pnp,
+    to_uint8,
+)
+
+
+def _pair(k: int = 4):
+    frames = synth_frames(3, k + 1, 5.0, 256, 192)  # 5 fps: wide baselines between frames 0 and k
+    return frames[0], frames[k]
+
+
+def test_scaled_camera_keeps_the_field_of_view():
+    cam = canonical_camera(128, 96)
+    big = scaled_camera(cam, 4)
+    assert (big.width, big.height) == (512, 384)
+    assert big == canonical_camera(512, 384)
+
+
+def test_keyframe_points_back_project_and_reject_depth_edges():
+    cam = canonical_camera(32, 24)
+    feat = scaled_camera(cam, 4)
+    depth = torch.full((24, 32), 2.0, dtype=torch.float64)
+    depth[:, 16:] = 4.0  # a depth edge between columns 15 and 16
+    uv = np.array([[20.0, 40.0], [63.5, 40.0], [100.0, 50.0]])  # left plane, on the edge, right plane
+    xyz = keyframe_points(uv, feat, depth, cam)
+    assert np.allclose(xyz[0, 2], 2.0) and np.allclose(xyz[2, 2], 4.0)
+    assert np.isnan(xyz[1]).all()
+    back = project_points(xyz[[0, 2]], np.eye(4), feat)
+    assert np.allclose(back, uv[[0, 2]])
+
+
+def test_orb_pnp_recovers_a_wide_baseline():
+    A, B = _pair()
+    T_ba_true = (se3_inverse(B.pose) @ A.pose).numpy()
+    t_true, r_true = pose_distance(torch.eye(4, dtype=torch.float64), torch.from_numpy(T_ba_true))
+    orb = ORBExtractor(n_features=800, fast_threshold=8)
+    fa, fb = orb(to_uint8(A.gray)), orb(to_uint8(B.gray))
+    assert len(fa) > 200 and len(fb) > 200
+    ia, ib = match(fa.desc, fb.desc, ratio=0.8, max_distance=64)
+    xyz = keyframe_points(fa.uv[ia], A.camera, A.depth, A.camera)
+    ok = np.isfinite(xyz).all(1)
+    res = solve_pnp(xyz[ok], fb.uv[ib][ok], B.camera, threshold_px=2.0, min_inliers=20)
+    assert res.ok and res.num_inliers > 40
+    t_err, r_err = pose_distance(torch.from_numpy(T_ba_true), torch.from_numpy(res.T_ab))
+    assert t_true > 0.05  # a real baseline ...
+    # ... recovered: 28 deg and 6.6 cm between the frames; measured 9 mm and 0.06 deg off at 256x192.
+    assert r_true > 10.0 and t_err < 0.25 * t_true and r_err < 0.5, (t_err, r_err, t_true, r_true)
+
+
+def test_guided_matching_uses_only_predicted_neighbourhoods():
+    A, B = _pair()
+    T_ba = (se3_inverse(B.pose) @ A.pose).numpy()
+    orb = ORBExtractor(n_features=800, fast_threshold=8)
+    fa, fb = orb(to_uint8(A.gray)), orb(to_uint8(B.gray))
+    xyz = keyframe_points(fa.uv, A.camera, A.depth, A.camera)
+    pred = project_points(np.nan_to_num(xyz, nan=-1.0), T_ba, B.camera)
+    allowed = guided_mask(pred, fb.uv, radius=6.0)
+    ia, ib = match(fa.desc, fb.desc, ratio=0.9, max_distance=64, allowed=allowed)
+    assert len(ia) > 50
+    assert bool(allowed[ia, ib].all())  # every match is inside its window
+    assert len(np.unique(ib)) == len(ib)  # each keypoint of B used once
+    # Nearly all guided matches agree with the true pose to a few pixels.
+    err = np.linalg.norm(pred[ia] - fb.uv[ib], axis=1)
+    assert np.median(err) < 2.0
+
+
+def test_no_texture_gives_no_features_and_pnp_refuses():
+    orb = ORBExtractor()
+    f = orb(np.full((96, 128), 128, np.uint8))
+    assert len(f) == 0
+    res = solve_pnp(np.zeros((3, 3)), np.zeros((3, 2)), canonical_camera(128, 96), 2.0, 10)
+    assert not res.ok
