@@ -25,8 +25,8 @@ def eval_command(
     ),
 ) -> None:
     """Absolute trajectory error (after alignment) and relative pose error of ESTIMATE against GROUNDTRUTH."""
+    from codeslam.data.trajectory_file import load_trajectory
     from codeslam.eval import metrics
-    from codeslam.eval.load import load_trajectory
     from codeslam.io import check_output_file
 
     if align not in metrics.ALIGN_MODES:

@@ -154,7 +154,7 @@ def _write_outputs(out, model, cframes, keyframes, depths, result, cfg, fusion_c
     import yaml
 
     from codeslam.cli.depth import write_depth16
-    from codeslam.eval.trajectory import Trajectory, write_tum
+    from codeslam.data.trajectory import Trajectory, write_tum
     from codeslam.io import atomic_write, write_json
     from codeslam.recon.fusion import FusionView, fuse
     from codeslam.recon.panels import Tile, depth_range, write_panel

@@ -61,7 +61,7 @@ class Sequence(abc.ABC):
         """Ground truth from the trajectory file ``path`` (parsed by ``read``: path -> Trajectory) interpolated at
         ``stamps``: (N, 4, 4) float64 with NaN rows where no pose is within ``max_gap`` seconds; sets ``gt_path``.
         None when the file does not exist, or (with a warning) when it covers none of the timestamps."""
-        from codeslam.eval.association import interpolate_poses
+        from codeslam.data.association import interpolate_poses
 
         self.gt_path: Path | None = None
         if not path.is_file():

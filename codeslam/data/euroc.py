@@ -7,7 +7,7 @@ Layout (``root`` is the sequence folder holding ``mav0/``, or ``mav0/`` itself):
     mav0/cam0/sensor.yaml                       intrinsics [fu, fv, cu, cv], resolution [w, h],
                                                 distortion_coefficients [k1, k2, p1, p2] (radial-tangential),
                                                 T_BS {rows: 4, cols: 4, data: [16 numbers]} sensor-to-body
-    mav0/state_groundtruth_estimate0/data.csv   body (IMU) poses T_wb, see codeslam.eval.euroc_csv
+    mav0/state_groundtruth_estimate0/data.csv   body (IMU) poses T_wb, see codeslam.data.euroc_csv
 
 Grey images become three equal channels. There is no depth. The ground truth describes the *body* (IMU)
 frame; the camera's pose is ``T_wc = T_wb @ T_BS`` (T_BS maps camera points into the body frame), with
@@ -25,6 +25,7 @@ import torch
 import yaml
 
 from codeslam.data.base import Sequence
+from codeslam.data.euroc_csv import NS_PER_S, read_euroc_csv
 from codeslam.data.folder import yaml_error_text
 from codeslam.data.frame import Frame
 from codeslam.data.imageio import (
@@ -37,7 +38,6 @@ from codeslam.data.imageio import (
 )
 from codeslam.data.textfile import check_increasing, data_lines
 from codeslam.errors import CodeSLAMError, DatasetError
-from codeslam.eval.euroc_csv import NS_PER_S, read_euroc_csv
 from codeslam.geometry.camera import PinholeCamera
 
 #: Largest spacing of the two ground-truth samples a frame's pose is interpolated between (the estimate

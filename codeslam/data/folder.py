@@ -48,8 +48,8 @@ from codeslam.data.imageio import (
     read_rgb,
     undistort_frame,
 )
+from codeslam.data.trajectory import read_tum
 from codeslam.errors import CodeSLAMError, ConfigError, DatasetError
-from codeslam.eval.trajectory import read_tum
 from codeslam.geometry.camera import PinholeCamera
 
 CAMERA_FILE = "camera.yaml"

@@ -33,8 +33,8 @@ from codeslam.data.base import Sequence
 from codeslam.data.frame import Frame
 from codeslam.data.imageio import check_frame_shapes, frame_index, read_depth_npy, read_rgb
 from codeslam.data.textfile import check_quaternion, data_lines, finite_floats
+from codeslam.data.trajectory import poses_from_tum_rows
 from codeslam.errors import DatasetError
-from codeslam.eval.trajectory import poses_from_tum_rows
 from codeslam.geometry.camera import PinholeCamera
 
 TARTANAIR_CAMERA = PinholeCamera(fx=320.0, fy=320.0, cx=320.0, cy=240.0, width=640, height=480)

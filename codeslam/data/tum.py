@@ -10,7 +10,7 @@ Layout::
 Choices (documented here because the benchmark leaves them to the user):
 
 - **Frames.** One frame per ``rgb.txt`` line. When ``depth.txt`` exists, colour and depth are paired by
-  nearest timestamp (:func:`~codeslam.eval.association.associate`, at most ``max_diff`` = 0.02 s apart, as
+  nearest timestamp (:func:`~codeslam.data.association.associate`, at most ``max_diff`` = 0.02 s apart, as
   the benchmark's ``associate.py``); colour frames with no depth partner are dropped (with a warning), the
   benchmark's own convention for RGB-D work. Without ``depth.txt`` every colour frame is kept and
   ``depth`` is None.
@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from codeslam.data.association import associate
 from codeslam.data.base import Sequence
 from codeslam.data.frame import Frame
 from codeslam.data.imageio import (
@@ -51,9 +52,8 @@ from codeslam.data.imageio import (
     undistort_frame,
 )
 from codeslam.data.textfile import check_increasing, data_lines, finite_floats
+from codeslam.data.trajectory import read_tum
 from codeslam.errors import CodeSLAMError, DatasetError
-from codeslam.eval.association import associate
-from codeslam.eval.trajectory import read_tum
 from codeslam.geometry.camera import PinholeCamera
 
 #: TUM depth PNGs: value 5000 = 1 m.

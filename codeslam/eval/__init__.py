@@ -1,1 +1,2 @@
-"""Trajectories and their evaluation (ATE, RPE, drift against travelled distance)."""
+"""Evaluation of trajectories (ATE, RPE, drift against travelled distance) and its plots; the trajectories and their
+files are in :mod:`codeslam.data`."""

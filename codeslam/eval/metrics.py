@@ -1,8 +1,8 @@
 """Trajectory error metrics: absolute trajectory error (ATE), relative pose error (RPE), drift against
 travelled distance and KITTI-style segment errors.
 
-Pure maths on :class:`~codeslam.eval.trajectory.Trajectory` objects (numpy float64 inside): no file I/O and
-no plotting (those live in :mod:`codeslam.eval.load`, :mod:`codeslam.eval.plots` and the CLI).
+Pure maths on :class:`~codeslam.data.trajectory.Trajectory` objects (numpy float64 inside): no file I/O and
+no plotting (reading files is :mod:`codeslam.data.trajectory_file`, plots are :mod:`codeslam.eval.plots`).
 
 The definitions follow evo (M. Grupp, https://github.com/MichaelGrupp/evo), the tool SLAM papers report, so
 that numbers are comparable; the test suite cross-checks them against evo 1.38:
@@ -25,9 +25,9 @@ import numpy as np
 import torch
 
 from codeslam.constants import UMEYAMA_RANK_RTOL
+from codeslam.data.association import associate
+from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
-from codeslam.eval.association import associate
-from codeslam.eval.trajectory import Trajectory
 from codeslam.geometry.lie import so3_log
 
 Align = Literal["se3", "sim3", "none"]
@@ -193,7 +193,7 @@ def match_trajectories(
     est: Trajectory, ref: Trajectory, max_diff: float = DEFAULT_MAX_DIFF, min_matches: int = MIN_MATCHES
 ) -> tuple[np.ndarray, np.ndarray]:
     """Associate ``est`` with ``ref`` by timestamp, one-to-one, nearest first, pairs at most ``max_diff``
-    seconds apart (:func:`codeslam.eval.association.associate`, the TUM benchmark's rule). Where every
+    seconds apart (:func:`codeslam.data.association.associate`, the TUM benchmark's rule). Where every
     estimate stamp has a distinct nearest reference stamp this is the same as evo's
     ``sync.associate_trajectories``; unlike evo it never matches one reference pose twice.
 

@@ -26,8 +26,8 @@ import torch
 
 from codeslam.data.base import Sequence
 from codeslam.data.frame import resample_frame
+from codeslam.data.trajectory import Trajectory, write_tum
 from codeslam.errors import CodeSLAMError, ConfigError
-from codeslam.eval.trajectory import Trajectory, write_tum
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.io import atomic_path, atomic_write, write_json
 from codeslam.slam.config import SLAMConfig

@@ -25,8 +25,8 @@ import numpy as np
 import torch
 
 from codeslam.data.frame import Frame
+from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
-from codeslam.eval.trajectory import Trajectory
 from codeslam.geometry.lie import se3_inverse
 from codeslam.sfm.decoder import LinearDecoder
 from codeslam.sfm.keyframes import Keyframe

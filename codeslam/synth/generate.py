@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from codeslam.data.imageio import write_depth_png, write_rgb_png
+from codeslam.data.trajectory import Trajectory, write_tum
 from codeslam.errors import CodeSLAMError
-from codeslam.eval.trajectory import Trajectory, write_tum
 from codeslam.geometry.camera import PinholeCamera, canonical_camera
 from codeslam.io import atomic_write, ensure_dir
 from codeslam.synth.render import RenderConfig, render

@@ -6,7 +6,7 @@ import json
 import torch
 
 from codeslam.cli import main
-from codeslam.eval.trajectory import read_tum
+from codeslam.data.trajectory import read_tum
 from codeslam.network.config import NetworkConfig
 from codeslam.network.model import CodeNetwork
 from codeslam.network.weights import save_weights

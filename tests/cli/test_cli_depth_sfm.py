@@ -19,8 +19,8 @@ from safetensors.torch import save_file
 from codeslam.cli import main
 from codeslam.cli.depth import parse_frames
 from codeslam.data.registry import open_dataset
+from codeslam.data.trajectory import read_tum
 from codeslam.errors import ConfigError, DatasetError
-from codeslam.eval.trajectory import read_tum
 from codeslam.geometry.proximity import depth_to_prox
 from codeslam.network import CodeNetwork, NetworkConfig, save_weights
 

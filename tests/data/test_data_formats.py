@@ -24,15 +24,15 @@ from PIL import Image
 
 from codeslam.cli import main
 from codeslam.data.euroc import EurocSequence
+from codeslam.data.euroc_csv import write_euroc_csv
 from codeslam.data.folder import FolderSequence
 from codeslam.data.imageio import DepthWarning, write_depth_png, write_rgb_png
 from codeslam.data.registry import FORMATS, describe_dataset, detect_format, open_dataset
 from codeslam.data.scenenet import SCENENET_CAMERA, SceneNetSequence, look_at_pose, ray_length_to_z
 from codeslam.data.tartanair import TartanAirSequence, ned_to_optical
+from codeslam.data.trajectory import Trajectory, tum_rows_from_poses, write_tum
 from codeslam.data.tum import TUM_PRESETS, TUM_ROS_DEFAULT, TumSequence
 from codeslam.errors import ConfigError, DatasetError
-from codeslam.eval.euroc_csv import write_euroc_csv
-from codeslam.eval.trajectory import Trajectory, tum_rows_from_poses, write_tum
 from codeslam.geometry.camera import PinholeCamera
 
 W, H = 32, 24

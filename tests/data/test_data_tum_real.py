@@ -11,8 +11,8 @@ import torch
 from PIL import Image
 
 from codeslam.cli import main
+from codeslam.data.trajectory import read_tum
 from codeslam.data.tum import TUM_ROS_DEFAULT, TumSequence
-from codeslam.eval.trajectory import read_tum
 
 
 def test_codeslam_info_on_tum_rpy(tum_rpy, tmp_path, capsys):

@@ -11,8 +11,8 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from codeslam.cli import main
-from codeslam.eval.euroc_csv import write_euroc_csv
-from codeslam.eval.trajectory import Trajectory, read_tum, write_tum
+from codeslam.data.euroc_csv import write_euroc_csv
+from codeslam.data.trajectory import Trajectory, read_tum, write_tum
 
 evo_metrics = pytest.importorskip("evo.core.metrics")
 from evo.core import sync  # noqa: E402

@@ -13,9 +13,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from codeslam.eval.load import load_trajectory
+from codeslam.data.trajectory import Trajectory, write_tum
+from codeslam.data.trajectory_file import load_trajectory
 from codeslam.eval.metrics import ate, rpe
-from codeslam.eval.trajectory import Trajectory, write_tum
 
 evo_metrics = pytest.importorskip("evo.core.metrics")
 from evo.core import sync  # noqa: E402

@@ -7,6 +7,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
+from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
 from codeslam.eval.metrics import (
     ErrorStats,
@@ -22,7 +23,6 @@ from codeslam.eval.metrics import (
     segment_errors,
     umeyama,
 )
-from codeslam.eval.trajectory import Trajectory
 
 
 def random_sim3(rng: np.random.Generator, scale: float) -> Sim3:

@@ -23,7 +23,7 @@ from safetensors.torch import save_file
 
 from codeslam.cli import main
 from codeslam.data.imageio import write_depth_png, write_rgb_png
-from codeslam.eval.trajectory import Trajectory, write_tum
+from codeslam.data.trajectory import Trajectory, write_tum
 from codeslam.geometry.camera import canonical_camera
 from codeslam.synth.shards import SHARD_FORMAT
 

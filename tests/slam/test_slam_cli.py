@@ -10,8 +10,8 @@ import pytest
 
 from codeslam.cli import main
 from codeslam.data.registry import open_dataset
+from codeslam.data.trajectory import read_tum
 from codeslam.errors import ConfigError
-from codeslam.eval.trajectory import read_tum
 from codeslam.recon.ply import read_ply
 from codeslam.slam.config import load_config
 from codeslam.slam.pipeline import parse_frame_range

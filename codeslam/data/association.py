@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from codeslam.eval.trajectory import Trajectory
+from codeslam.data.trajectory import Trajectory
 from codeslam.geometry.quaternion import quat_slerp, quat_xyzw_to_rotmat, rotmat_to_quat_xyzw
 
 

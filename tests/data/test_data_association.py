@@ -10,8 +10,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from codeslam.eval.association import associate, interpolate_poses
-from codeslam.eval.trajectory import Trajectory
+from codeslam.data.association import associate, interpolate_poses
+from codeslam.data.trajectory import Trajectory
 from codeslam.geometry.quaternion import quat_xyzw_to_rotmat
 
 

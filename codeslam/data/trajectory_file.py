@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from codeslam.data.euroc_csv import read_euroc_csv
+from codeslam.data.trajectory import Trajectory, read_tum
 from codeslam.errors import DatasetError
-from codeslam.eval.euroc_csv import read_euroc_csv
-from codeslam.eval.trajectory import Trajectory, read_tum
 
 FORMATS = ("tum", "euroc")
 

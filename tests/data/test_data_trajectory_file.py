@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
+from codeslam.data.euroc_csv import write_euroc_csv
+from codeslam.data.trajectory import Trajectory, poses_from_tum_rows, write_tum
+from codeslam.data.trajectory_file import detect_format, load_trajectory
 from codeslam.errors import DatasetError
-from codeslam.eval.euroc_csv import write_euroc_csv
-from codeslam.eval.load import detect_format, load_trajectory
-from codeslam.eval.trajectory import Trajectory, poses_from_tum_rows, write_tum
 
 
 @pytest.fixture

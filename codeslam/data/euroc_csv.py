@@ -9,7 +9,7 @@ one pose per line, comma-separated, the timestamp an integer in nanoseconds, the
 orientation a quaternion **w first** (the TUM format puts w last). The pose is body-to-world ``T_wb``; any
 columns after ``q_z`` (velocities, IMU biases) are ignored. Lines starting with ``#`` are comments.
 
-Timestamps become float64 seconds in :class:`~codeslam.eval.trajectory.Trajectory`. A float64 holds a
+Timestamps become float64 seconds in :class:`~codeslam.data.trajectory.Trajectory`. A float64 holds a
 Unix time in seconds to about 0.24 microseconds, so nanoseconds do not survive exactly, but
 ``read(write(read(f)))`` gives back the same seconds bit for bit (the writer rounds to the nearest ns).
 """
@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from codeslam.data.textfile import check_increasing, check_quaternion, data_lines, finite_floats
+from codeslam.data.trajectory import Trajectory, poses_from_tum_rows, tum_rows_from_poses
 from codeslam.errors import DatasetError
-from codeslam.eval.trajectory import Trajectory, poses_from_tum_rows, tum_rows_from_poses
 from codeslam.io import atomic_write
 
 NS_PER_S = 1_000_000_000

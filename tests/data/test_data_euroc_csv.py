@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
+from codeslam.data.euroc_csv import read_euroc_csv, seconds_to_ns, write_euroc_csv
+from codeslam.data.trajectory import Trajectory, poses_from_tum_rows
 from codeslam.errors import DatasetError
-from codeslam.eval.euroc_csv import read_euroc_csv, seconds_to_ns, write_euroc_csv
-from codeslam.eval.trajectory import Trajectory, poses_from_tum_rows
 
 # Two lines in the layout of EuRoC MH_01 mav0/state_groundtruth_estimate0/data.csv (17 columns).
 ASL_HEADER = (

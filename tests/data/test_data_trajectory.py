@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 import torch
 
+from codeslam.data.trajectory import Trajectory, read_tum, write_tum
 from codeslam.errors import DatasetError
-from codeslam.eval.trajectory import Trajectory, read_tum, write_tum
 
 
 def test_tum_groundtruth_reads(tum_rpy):
