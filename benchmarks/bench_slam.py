@@ -27,10 +27,11 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from codeslam.data.frame import Frame
+from codeslam.data.frame import Frame, resample_frame
+from codeslam.eval.slam_run import evaluate_run
 from codeslam.geometry.camera import canonical_camera
 from codeslam.slam.config import SLAMConfig, load_config
-from codeslam.slam.pipeline import evaluate_run, ground_truth, run_slam, to_camera
+from codeslam.slam.pipeline import ground_truth, run_slam
 from codeslam.slam.system import CodeSLAM
 
 
@@ -116,7 +117,7 @@ def main() -> None:
         from codeslam.data.registry import open_dataset
 
         ds = open_dataset(args.dataset)
-        frames = [to_camera(ds[i], camera) for i in range(min(args.frames, len(ds)))]
+        frames = [resample_frame(ds[i], camera) for i in range(min(args.frames, len(ds)))]
         seq = _Frames(frames)
     else:
         seq = synthetic_sequence(args.seed, args.frames, args.fps, camera.width, camera.height)

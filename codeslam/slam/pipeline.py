@@ -1,6 +1,7 @@
 """The SLAM runner (the tools layer around :class:`~codeslam.slam.system.CodeSLAM`): it owns the dataset loop,
 the resampling of every frame to the depth model's camera (the paper's intrinsics correction, Sec. 5.3), timing,
-evaluation against ground truth and the output files. The algorithm itself never opens a file.
+the ground truth of the processed frames and the output files. The algorithm itself never opens a file; the
+evaluation against ground truth is :mod:`codeslam.eval.slam_run` (SLAM never imports evaluation code).
 
 Outputs of :func:`write_outputs` (all written atomically):
 
@@ -10,7 +11,8 @@ Outputs of :func:`write_outputs` (all written atomically):
 * ``map.ply``: the keyframes' depths fused into one coloured point cloud (bilateral-filtered, slanted elements
   dropped, as the paper's Fig. 8; :func:`codeslam.recon.fuse`);
 * ``result.json``: counts, timings, frames per second and, with ground truth, the metrics;
-* ``config.yaml``: the resolved configuration; ``trajectory.png``: the aligned trajectory (with ground truth).
+* ``config.yaml``: the resolved configuration; with ground truth the caller adds ``trajectory.png`` (the aligned
+  trajectory, :func:`codeslam.eval.slam_run.plot_run`).
 """
 
 from __future__ import annotations
@@ -27,43 +29,15 @@ import torch
 from codeslam.data.base import Sequence
 from codeslam.data.frame import resample_frame
 from codeslam.data.trajectory import Trajectory, write_tum
-from codeslam.errors import CodeSLAMError, ConfigError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.io import atomic_path, atomic_write, write_json
 from codeslam.slam.config import SLAMConfig
-from codeslam.slam.system import CodeSLAM, DepthModelFactory, FrameResult
+from codeslam.slam.system import CodeSLAM, FrameResult
 from codeslam.slam.window import MapKeyframe
 from codeslam.viz import Visualizer
 
 #: The system's stages, in the order :attr:`FrameResult.timings_ms` reports them, plus the runner's own.
 STAGES = ("read", "resample", "track", "decode", "marginalise", "window")
-
-
-def parse_frame_range(spec: str | None, num_frames: int) -> range:
-    """``START:END[:STEP]`` (END exclusive, either bound may be empty, as a Python slice without negatives) ->
-    the frame indices; None means every frame. ConfigError when malformed, outside the sequence or selecting
-    fewer than the two frames SLAM needs."""
-    if num_frames < 2:
-        raise ConfigError(f"SLAM needs at least 2 frames; the sequence has {num_frames}")
-    if spec is None:
-        return range(num_frames)
-    parts = spec.split(":")
-    if len(parts) not in (2, 3):
-        raise ConfigError(f"--frames must look like START:END or START:END:STEP, got {spec!r}")
-    try:
-        vals = [int(p) if p.strip() else None for p in parts]
-    except ValueError:
-        raise ConfigError(f"--frames must hold integers, got {spec!r}") from None
-    start, end = vals[0] or 0, num_frames if vals[1] is None else vals[1]
-    step = 1 if len(vals) < 3 or vals[2] is None else vals[2]
-    if start < 0 or end < 0 or step < 1:
-        raise ConfigError(f"--frames {spec!r}: bounds must be >= 0 and the step >= 1")
-    if start >= num_frames or end > num_frames:
-        raise ConfigError(f"--frames {spec!r} lies outside the sequence's {num_frames} frames (0:{num_frames})")
-    frames = range(start, end, step)
-    if len(frames) < 2:
-        raise ConfigError(f"--frames {spec!r} selects {len(frames)} frame(s); SLAM needs at least 2")
-    return frames
 
 
 @dataclass
@@ -98,13 +72,13 @@ def run_slam(
     sequence: Sequence,
     system: CodeSLAM,
     camera: PinholeCamera,
-    frames: range | None = None,
+    frames: list[int] | range | None = None,
     visualizer: Visualizer | None = None,
     progress: Callable[[int, int, FrameResult], None] | None = None,
 ) -> SLAMRun:
-    """Run ``system`` over ``frames`` of ``sequence`` (all when None), each frame resampled to ``camera``.
-    ``progress(done, total, result)`` is called after every frame."""
-    frames = parse_frame_range(None, len(sequence)) if frames is None else frames
+    """Run ``system`` over the frame indices ``frames`` of ``sequence`` (all when None), in the order given, each
+    frame resampled to ``camera``. ``progress(done, total, result)`` is called after every frame."""
+    frames = range(len(sequence)) if frames is None else frames
     visualizer = visualizer or Visualizer()
     totals = dict.fromkeys(STAGES, 0.0)
     results = []
@@ -135,8 +109,8 @@ def run_slam(
     )
 
 
-# ---- evaluation -----------------------------------------------------------------------------------------------
-def ground_truth(sequence: Sequence, frames: range) -> Trajectory | None:
+# ---- ground truth -------------------------------------------------------------------------------------------
+def ground_truth(sequence: Sequence, frames: list[int] | range) -> Trajectory | None:
     """The ground-truth poses of the processed frames that have one, or None without ground truth."""
     gt = sequence.gt_poses
     if gt is None:
@@ -145,43 +119,6 @@ def ground_truth(sequence: Sequence, frames: range) -> Trajectory | None:
     if not idx:
         return None
     return Trajectory(sequence.timestamps[idx], gt[idx])
-
-
-def _rotation_drift_deg(est: Trajectory, ref: Trajectory, ate) -> np.ndarray:
-    """Orientation error (degrees) of every matched pose relative to the first, ``angle((R_ref0^T R_ref)^T
-    (R_est0^T R_est))``: independent of any alignment (a position-only alignment leaves the roll about a nearly
-    straight path undetermined)."""
-    from codeslam.eval.metrics import rotation_angle
-
-    R_est = est.poses.numpy()[ate.est_idx, :3, :3]  # (K, 3, 3)
-    R_ref = ref.poses.numpy()[ate.ref_idx, :3, :3]
-    rel_est = np.swapaxes(R_est[:1], -1, -2) @ R_est  # R_est0^T R_est
-    rel_ref = np.swapaxes(R_ref[:1], -1, -2) @ R_ref
-    return np.degrees(rotation_angle(np.swapaxes(rel_ref, -1, -2) @ rel_est))
-
-
-def evaluate_run(est: Trajectory, gt: Trajectory) -> dict:
-    """Metrics of the estimate against ground truth: ATE (SE(3) and Sim(3) alignment), RPE, the orientation
-    error relative to the first frame (``rot_err_rmse_deg``, ``rot_err_max_deg``), and two no-motion
-    baselines: a constant pose at the first ground-truth pose
-    (``no_motion_ate_rmse``, unaligned) and the best any constant pose can do under alignment
-    (``no_motion_ate_rmse_aligned``, the RMS distance of the positions to their mean)."""
-    from codeslam.eval import metrics
-
-    out: dict = {}
-    se3 = metrics.evaluate(est, gt, align="se3")
-    s = se3.summary()
-    out.update(ate_se3_rmse=s["ate_rmse"], ate_se3_mean=s["ate_mean"], ate_se3_max=s["ate_max"],
-               rpe_trans_rmse=s["rpe_trans_rmse"], rpe_rot_rmse_deg=s["rpe_rot_rmse_deg"],
-               n_matched=s["n_matched"], path_length_gt=s["path_length_gt"], drift_end_error=s["drift_end_error"])
-    rot = _rotation_drift_deg(est, gt, se3.ate)
-    out.update(rot_err_rmse_deg=float(np.sqrt(np.mean(rot**2))), rot_err_max_deg=float(rot.max()))
-    sim3 = metrics.ate(est, gt, align="sim3")
-    out.update(ate_sim3_rmse=float(sim3.rmse), sim3_scale=float(sim3.alignment.s))
-    xyz = gt.positions_xyz.numpy()
-    out["no_motion_ate_rmse"] = float(np.sqrt(np.mean(np.sum((xyz - xyz[0]) ** 2, axis=1))))
-    out["no_motion_ate_rmse_aligned"] = float(np.sqrt(np.mean(np.sum((xyz - xyz.mean(0)) ** 2, axis=1))))
-    return out
 
 
 def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
@@ -248,10 +185,11 @@ def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: Pinh
 
 
 def write_outputs(
-    out_dir: str | Path, run: SLAMRun, config: SLAMConfig, summary: dict, gt: Trajectory | None = None,
+    out_dir: str | Path, run: SLAMRun, config: SLAMConfig, summary: dict, written: dict[str, str] | None = None,
 ) -> dict[str, str]:
-    """Write the run's files into ``out_dir`` (see the module docstring); returns name -> path. result.json is
-    written last, so a run interrupted while writing leaves no summary pointing at missing files."""
+    """Write the run's files into ``out_dir`` (see the module docstring); returns name -> path, including
+    ``written``: files the caller already wrote there (e.g. the evaluation's plot). result.json is written last,
+    so a run interrupted while writing leaves no summary pointing at missing files."""
     out = Path(out_dir)
     paths = {name: out / name for name in ("trajectory.txt", "keyframes.txt", "keyframes.npz", "config.yaml")}
     write_tum(paths["trajectory.txt"], run.trajectory)
@@ -264,44 +202,7 @@ def write_outputs(
     paths["map.ply"] = out / "map.ply"
     write_ply(paths["map.ply"], fuse_keyframes(run.keyframes, run.camera),
               comments=[f"codeslam slam: {len(run.keyframes)} keyframes fused"])
-    if gt is not None and "ate_se3_rmse" in summary:
-        from codeslam.eval import metrics
-        from codeslam.eval.plots import plot_trajectories
-
-        ate = metrics.ate(run.trajectory, gt, align="se3")
-        paths["trajectory.png"] = out / "trajectory.png"
-        plot_trajectories(paths["trajectory.png"], ate.est_xyz, gt.positions_xyz.numpy(),
-                          title=f"CodeSLAM: ATE RMSE {ate.rmse:.4f} m (SE(3) alignment), {len(run.keyframes)} "
-                                f"keyframes", est_label="estimate", ref_label="ground truth")
     paths["result.json"] = out / "result.json"
-    files = {k: str(v) for k, v in paths.items()}
+    files = {**(written or {}), **{k: str(v) for k, v in paths.items()}}
     write_json(paths["result.json"], {**summary, "outputs": files})
     return files
-
-
-def run_and_write(
-    sequence: Sequence,
-    config: SLAMConfig,
-    depth_factory: DepthModelFactory,
-    camera: PinholeCamera,
-    frames: range,
-    out_dir: str | Path | None = None,
-    visualizer: Visualizer | None = None,
-    progress: Callable[[int, int, FrameResult], None] | None = None,
-    **extra,
-) -> tuple[SLAMRun, dict]:
-    """Build the system, run it, evaluate against the sequence's ground truth (if any) and write the outputs
-    (if ``out_dir``). Returns the run and its summary (``extra`` keys are added to the summary)."""
-    system = CodeSLAM(config, depth_factory)
-    run = run_slam(sequence, system, camera, frames, visualizer, progress)
-    gt = ground_truth(sequence, frames)
-    evaluation = None
-    if gt is not None:
-        try:
-            evaluation = evaluate_run(run.trajectory, gt)
-        except CodeSLAMError as e:  # e.g. a ground truth too short or degenerate to align
-            extra["evaluation_error"] = str(e)
-    summary = summarise(run, evaluation, **extra)
-    if out_dir is not None:
-        summary["outputs"] = write_outputs(out_dir, run, config, summary, gt if evaluation else None)
-    return run, summary

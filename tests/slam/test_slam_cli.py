@@ -1,5 +1,4 @@
-"""``codeslam slam`` and the runner: outputs on a synthetic TUM sequence, the frame-range syntax, and one-line
-errors for bad input."""
+"""``codeslam slam`` and the runner: outputs on a synthetic TUM sequence and one-line errors for bad input."""
 
 from __future__ import annotations
 
@@ -11,10 +10,8 @@ import pytest
 from codeslam.cli import main
 from codeslam.data.registry import open_dataset
 from codeslam.data.trajectory import read_tum
-from codeslam.errors import ConfigError
 from codeslam.recon.ply import read_ply
 from codeslam.slam.config import load_config
-from codeslam.slam.pipeline import parse_frame_range
 
 CONFIG = (
     "tracker:\n  pyramid_levels: [2, 1, 0]\n  max_iterations: [8, 6, 5]\n"
@@ -106,19 +103,3 @@ def test_rerun_viewer_without_rerun_is_one_line(dataset, tmp_path, capsys):
     err = _one_line_error(capsys, ["slam", str(dataset / "seq" / "scene_000"), "--viewer", "rerun", "--depth-model",
                                    "standin", "--size", "64x48", "--out", str(tmp_path / "o"), "-q"])
     assert "rerun-sdk" in err
-
-
-@pytest.mark.parametrize(
-    ("spec", "n", "expected"),
-    [(None, 5, range(5)), ("1:4", 5, range(1, 4)), ("0:10:3", 10, range(0, 10, 3)), (":3", 9, range(3)),
-     ("6:", 9, range(6, 9)), ("::2", 5, range(0, 5, 2))],
-)
-def test_frame_ranges(spec, n, expected):
-    assert parse_frame_range(spec, n) == expected
-
-
-@pytest.mark.parametrize(("spec", "n"), [("3", 9), ("1:2:3:4", 9), ("0:10", 9), ("9:", 9), ("-1:3", 9),
-                                         ("0:5:0", 9), ("4:4", 9), ("x:y", 9), (None, 1), (None, 0)])
-def test_bad_frame_ranges(spec, n):
-    with pytest.raises(ConfigError):
-        parse_frame_range(spec, n)

@@ -9,9 +9,10 @@ import torch
 from slam_scene import MemorySequence, small_config, synth_frames
 
 from codeslam.errors import CodeSLAMError
+from codeslam.eval.slam_run import evaluate_run
 from codeslam.geometry.camera import canonical_camera
 from codeslam.slam.depth import standin_depth_model
-from codeslam.slam.pipeline import evaluate_run, ground_truth, run_slam
+from codeslam.slam.pipeline import ground_truth, run_slam
 from codeslam.slam.system import CodeSLAM
 
 
