@@ -98,21 +98,23 @@ def parse_frames(spec: str | None, num_frames: int, min_frames: int = 1, what: s
             raise ConfigError(f"--frames {spec!r} lists frame {i} twice")
         seen.add(i)
     if len(out) < min_frames:
-        raise ConfigError(f"--frames {spec!r} selects {len(out)} frame(s); {what} needs at least {min_frames}")
+        raise ConfigError(f"--frames {spec!r} selects {len(out)} frame(s); {what} needs at least {min_frames} frames")
     if increasing and any(b < a for a, b in zip(out, out[1:])):
         raise ConfigError(f"--frames {spec!r}: {what} runs forward in time, so the frames must increase")
     return out
 
 
 # ---- image size -----------------------------------------------------------------------------------------------
-def parse_size(size: str) -> tuple[int, int]:
-    """``--size WIDTHxHEIGHT`` -> (width, height), each between 8 and 4096; ConfigError otherwise."""
+def parse_size(size: str, limits: tuple[int, int] | None = (8, 4096)) -> tuple[int, int]:
+    """``--size WIDTHxHEIGHT`` -> (width, height), each within ``limits`` (None: the caller's configuration checks
+    the values); ConfigError otherwise."""
     try:
         w, h = (int(p) for p in size.lower().split("x"))
     except ValueError:
         raise ConfigError(f"--size must look like WIDTHxHEIGHT (e.g. 128x96), got {size!r}") from None
-    if not (8 <= w <= 4096 and 8 <= h <= 4096):
-        raise ConfigError(f"--size must be between 8x8 and 4096x4096, got {size!r}")
+    if limits is not None and not (limits[0] <= min(w, h) and max(w, h) <= limits[1]):
+        lo, hi = limits
+        raise ConfigError(f"--size must be between {lo}x{lo} and {hi}x{hi}, got {size!r}")
     return w, h
 
 

@@ -13,18 +13,22 @@ from pathlib import Path
 import typer
 
 from codeslam.cli.app import app
+from codeslam.cli.common import Device, OutDir, Quiet, Threads, Weights
 
 
 @app.command("demo")
 def demo_command(
-    out: Path = typer.Option(Path("codeslam_demo"), "--out", help="Output folder (data/ and slam/ inside)."),
-    frames: int = typer.Option(60, "--frames", help="Frames of the synthetic sequence (30 per second)."),
+    out: OutDir = Path("codeslam_demo"),
+    frames: int = typer.Option(60, "--frames", help="How many frames to render (30 per second); SLAM runs on all "
+                               "of them."),
     seed: int = typer.Option(3, "--seed", help="Seed of the synthetic room and camera path."),
-    weights: Path | None = typer.Option(None, "--weights", help="Network weights (default: the shipped weights)."),
-    threads: int | None = typer.Option(None, "--threads", help="torch CPU threads (default: torch's choice)."),
-    device: str | None = typer.Option(None, "--device", help="cpu, cuda or cuda:N."),
+    weights: Weights = None,
+    threads: Threads = None,
+    device: Device = None,
+    quiet: Quiet = False,
 ) -> None:
-    """Render a synthetic room, run CodeSLAM on it with the shipped weights, evaluate against ground truth."""
+    """Render a synthetic room, run CodeSLAM on it with the shipped weights, evaluate against ground truth.
+    Writes the sequence to data/ and the SLAM outputs to slam/ under --out (default codeslam_demo)."""
     from rich.console import Console
 
     from codeslam.cli.slam import slam_command
@@ -40,4 +44,4 @@ def demo_command(
     console.print(f"[bold]2/2[/bold] running CodeSLAM on {data / 'scene_000'} (results in {out / 'slam'})")
     slam_command(dataset=data / "scene_000", out=out / "slam", fmt=None, frames=None, weights=weights,
                  config=None, json_out=None, viewer="none", device=device, depth_model="network", threads=threads,
-                 size="128x96", quiet=False)
+                 size="128x96", quiet=quiet)

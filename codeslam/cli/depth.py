@@ -23,6 +23,7 @@ from pathlib import Path
 import typer
 
 from codeslam.cli.app import app
+from codeslam.cli.common import DatasetArg, Device, Format, Frames, JsonOut, OutDir, Quiet, Threads, Weights
 from codeslam.errors import ConfigError, DatasetError
 from codeslam.io import check_outputs
 
@@ -31,46 +32,6 @@ DEPTH_PNG_FACTOR = 5000.0
 #: uncertainty PNG scale: value / 10000 = b (proximity units), so b up to 6.5 fits 16 bits
 UNCERTAINTY_PNG_FACTOR = 10000.0
 _UINT16_MAX = 65535
-
-
-def parse_frames(spec: str, num_frames: int) -> list[int]:
-    """``"0,5,10"``, ``"0:50:10"`` (Python range: start:stop[:step], stop excluded, empty stop = the end) or a
-    comma list mixing both -> frame indices in the given order. ConfigError for malformed text or repeated
-    frames, DatasetError for indices outside the sequence of ``num_frames`` frames."""
-    out: list[int] = []
-    for part in spec.split(","):
-        part = part.strip()
-        if not part:
-            continue
-        fields = part.split(":")
-        try:
-            if len(fields) == 1:
-                idx = [int(fields[0])]
-            elif len(fields) in (2, 3):
-                start = int(fields[0]) if fields[0] else 0
-                stop = int(fields[1]) if fields[1] else num_frames
-                step = int(fields[2]) if len(fields) == 3 and fields[2] else 1
-                if step <= 0:
-                    raise ConfigError(f"--frames: the step of {part!r} must be positive")
-                if stop > num_frames:
-                    raise DatasetError(f"--frames: {part!r} reaches frame {stop - 1}, but the sequence has "
-                                       f"{num_frames} frames (0..{num_frames - 1})")
-                idx = list(range(start, stop, step))
-            else:
-                raise ValueError
-        except ValueError:
-            raise ConfigError(f"--frames must look like 0,5,10 or 0:50:10, got {spec!r}") from None
-        for i in idx:
-            if not 0 <= i < num_frames:
-                raise DatasetError(f"--frames: frame {i} is outside the sequence of {num_frames} frames "
-                                   f"(0..{num_frames - 1})")
-        out.extend(idx)
-    if not out:
-        raise ConfigError(f"--frames selects no frame: {spec!r}")
-    if len(set(out)) != len(out):
-        dup = next(i for i in out if out.count(i) > 1)
-        raise ConfigError(f"--frames lists frame {dup} twice")
-    return out
 
 
 def parse_modes(modes: list[str]) -> list[str]:
@@ -97,82 +58,52 @@ def write_depth16(path: Path, depth, factor: float = DEPTH_PNG_FACTOR) -> None:
     write_depth_png(path, d, factor)
 
 
-def open_frames(dataset: Path, frames: str):
-    """Open ``dataset`` and parse ``frames`` against its length -> (sequence, frame indices)."""
-    from codeslam.data.registry import open_dataset
-
-    seq = open_dataset(dataset)
-    if len(seq) == 0:
-        raise DatasetError(f"{dataset} holds no frames")
-    return seq, parse_frames(frames, len(seq))
-
-
-def set_threads(threads: int | None) -> None:
-    """Apply ``--threads`` (None keeps torch's default)."""
-    if threads is None:
-        return
-    if threads < 1:
-        raise ConfigError(f"--threads must be >= 1, got {threads}")
-    import torch
-
-    torch.set_num_threads(threads)
-
-
-def check_device(device: str) -> str:
-    """``--device`` -> the same string, or ConfigError when torch cannot use it here."""
-    import torch
-
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, ValueError):
-        raise ConfigError(f"--device must look like cpu, cuda or cuda:N, got {device!r}") from None
-    if dev.type == "cuda" and (not torch.cuda.is_available() or (dev.index or 0) >= torch.cuda.device_count()):
-        raise ConfigError(f"--device {device}: no such CUDA device on this machine")
-    if dev.type not in ("cpu", "cuda"):
-        raise ConfigError(f"--device must be cpu or cuda[:N], got {device!r}")
-    return device
-
-
 def _fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.4f}"
 
 
 @app.command("depth")
 def depth_command(
-    dataset: Path = typer.Argument(..., help="Dataset folder (any format `codeslam info` reads)."),
-    frames: str = typer.Option(..., "--frames", help="Frames: 0,5,10 or start:stop:step (stop excluded)."),
+    dataset: DatasetArg,
+    frames: Frames,
     mode: list[str] = typer.Option(["zero"], "--mode", help="zero | encode | optimise; repeat (or comma-separate) "
                                    "to compare modes. encode and optimise need ground-truth depth."),
-    weights: Path | None = typer.Option(None, "--weights", help="Network weights (default: the shipped weights)."),
-    out: Path | None = typer.Option(None, "--out", help="Write depth, uncertainty and panel PNGs here."),
-    json_out: Path | None = typer.Option(None, "--json", help="Write the metrics as JSON here."),
+    fmt: Format = None,
+    weights: Weights = None,
+    out: OutDir = None,
+    json_out: JsonOut = None,
     fit_sigma: float | None = typer.Option(None, "--fit-sigma", help="optimise: ground-truth noise in proximity "
                                            "units, weighting the data against the code prior N(0, I) (default "
                                            "0.01)."),
-    device: str = typer.Option("cpu", "--device", help="cpu, cuda or cuda:N."),
-    threads: int | None = typer.Option(None, "--threads", help="torch CPU threads (default: torch's choice; 1 is "
-                                       "fastest on a busy machine)."),
+    device: Device = None,
+    threads: Threads = None,
+    quiet: Quiet = False,
 ) -> None:
-    """Depth from the code network (zero code, encoded, or optimised code) with proximity RMSE and abs-rel."""
+    """Depth from the code network (zero code, encoded, or optimised code) with proximity RMSE and abs-rel.
+    With --out, writes depth/<mode>/, uncertainty/ and panel/ PNGs and camera.json there."""
     from rich.console import Console
 
+    from codeslam.cli.common import check_device, open_frames, progress_bar, set_threads
     from codeslam.depthmodel import FIT_PROX_SIGMA, DepthModel, evaluate_predictions, predict_depth
 
     set_threads(threads)
-    check_device(device)
+    device = check_device(device)
     check_outputs(out, json_out)  # refuse bad output paths before any work
     modes = parse_modes(mode)
     sigma = FIT_PROX_SIGMA if fit_sigma is None else fit_sigma
     if not (math.isfinite(sigma) and sigma > 0):
         raise ConfigError(f"--fit-sigma must be a positive number, got {fit_sigma}")
     t0 = time.perf_counter()
-    seq, indices = open_frames(dataset, frames)
+    seq, indices = open_frames(dataset, fmt, frames)
     if any(m != "zero" for m in modes) and not seq.has_depth:
         raise DatasetError(f"--mode {'/'.join(m for m in modes if m != 'zero')} needs ground-truth depth, and "
                            f"{dataset} has none")
     model = DepthModel.load(weights, device=device)
-    cframes = [model.canonical(seq[i]) for i in indices]
-    preds = predict_depth(model, cframes, modes, sigma)
+    preds = []
+    with progress_bar("depth", len(indices), quiet) as update:
+        for k, i in enumerate(indices):  # one frame at a time, as predict_depth works anyway
+            preds += predict_depth(model, [model.canonical(seq[i])], modes, sigma)
+            update(k + 1, f"frame {i}")
 
     a = model.avg_depth
     errors = evaluate_predictions(preds, a)

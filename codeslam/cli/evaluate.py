@@ -7,6 +7,7 @@ from pathlib import Path
 import typer
 
 from codeslam.cli.app import app
+from codeslam.cli.common import JsonOut
 from codeslam.errors import ConfigError
 
 
@@ -18,7 +19,7 @@ def eval_command(
     delta: float = typer.Option(1.0, "--delta", help="RPE pair spacing (frames, or metres with --delta-unit m)."),
     delta_unit: str = typer.Option("frames", "--delta-unit", help="Unit of --delta: frames or m."),
     max_diff: float = typer.Option(0.01, "--max-diff", help="Largest timestamp difference to match poses (s)."),
-    json_out: Path | None = typer.Option(None, "--json", help="Write the results as JSON here."),
+    json_out: JsonOut = None,
     plot: Path | None = typer.Option(None, "--plot", help="Write a PNG of the aligned trajectories (xy, xz)."),
     drift_plot: Path | None = typer.Option(
         None, "--drift-plot", help="Write a PNG of translation error against travelled distance."

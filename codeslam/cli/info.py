@@ -2,34 +2,26 @@
 
 from __future__ import annotations
 
-import sys
-import warnings
-from pathlib import Path
-
-import typer
-
 from codeslam.cli.app import app
+from codeslam.cli.common import DatasetArg, Format, JsonOut
 
 
 @app.command()
 def info(
-    dataset: Path = typer.Argument(..., help="Dataset folder (TUM, EuRoC, SceneNet, TartanAir or image folder)."),
-    fmt: str = typer.Option(None, "--format", "-f", help="Dataset format; detected from the folder when omitted."),
-    json_path: Path = typer.Option(None, "--json", help="Also write the summary to this JSON file."),
+    dataset: DatasetArg,
+    fmt: Format = None,
+    json_path: JsonOut = None,
 ) -> None:
     """Show the frames, camera, depth and ground truth of a dataset (reads the first frame to check it)."""
     from rich.console import Console
     from rich.table import Table
 
+    from codeslam.cli.common import reader_warnings
     from codeslam.data.registry import describe_dataset, open_dataset
     from codeslam.io import write_json
 
-    # Reader warnings (skipped frames, invalid depth values, a default camera) become one line each.
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with reader_warnings():  # the first frame is read too
         summary = describe_dataset(open_dataset(dataset, format=fmt))
-    for w in caught:
-        print(f"codeslam: warning: {' '.join(str(w.message).split())}", file=sys.stderr)
     table = Table(title=f"{summary['path']} ({summary['format']})", show_header=False)
     table.add_column("key", style="bold")
     table.add_column("value")

@@ -29,6 +29,7 @@ from pathlib import Path
 import typer
 
 from codeslam.cli.app import app
+from codeslam.cli.common import DatasetArg, Device, Format, Frames, JsonOut, OutDir, Threads, Weights
 from codeslam.errors import ConfigError
 from codeslam.io import check_outputs
 
@@ -49,37 +50,36 @@ def _load_sfm_config(path: Path | None):
 
 @app.command("sfm")
 def sfm_command(
-    dataset: Path = typer.Argument(..., help="Dataset folder (any format `codeslam info` reads)."),
-    frames: str = typer.Option(..., "--frames", help="Frames: 0,5,10 or start:stop:step (stop excluded); >= 2."),
+    dataset: DatasetArg,
+    frames: Frames,
     master: int | None = typer.Option(None, "--master", help="Dataset index of the master frame, one of --frames "
                                       "(default: the first listed)."),
     pairs: str = typer.Option("master", "--pairs", help="master: the master with every other frame; all: every "
                               "pair."),
-    weights: Path | None = typer.Option(None, "--weights", help="Network weights (default: the shipped weights)."),
-    out: Path | None = typer.Option(None, "--out", help="Write depth PNGs, poses.txt, cloud.ply, panel.png here."),
-    json_out: Path | None = typer.Option(None, "--json", help="Write the metrics as JSON here."),
+    fmt: Format = None,
+    weights: Weights = None,
+    out: OutDir = None,
+    json_out: JsonOut = None,
     config: Path | None = typer.Option(None, "--config", help="YAML of SfMConfig fields (optionally under 'sfm:')."),
     max_depth: float = typer.Option(10.0, "--max-depth", help="Point cloud: drop depths beyond this (metres)."),
-    device: str = typer.Option("cpu", "--device", help="cpu, cuda or cuda:N."),
-    threads: int | None = typer.Option(None, "--threads", help="torch CPU threads (default: torch's choice; 1 is "
-                                       "fastest on a busy machine)."),
+    device: Device = None,
+    threads: Threads = None,
 ) -> None:
-    """Jointly optimise the codes and poses of the listed frames; depth, poses, point cloud and errors."""
-    from codeslam.cli.depth import check_device, open_frames, set_threads
+    """Jointly optimise the codes and poses of the listed frames (at least 2); depth, poses, point cloud and
+    errors. With --out, writes depth/ PNGs, poses.txt, cloud.ply, panel.png, sfm_config.yaml and camera.json."""
+    from codeslam.cli.common import check_device, open_frames, set_threads
     from codeslam.depthmodel import DepthModel
     from codeslam.recon.fusion import FusionConfig
     from codeslam.sfm import all_pairs, master_pairs, sfm
 
     set_threads(threads)
-    check_device(device)
+    device = check_device(device)
     check_outputs(out, json_out)  # refuse bad output paths before any work
     if pairs not in PAIR_MODES:
         raise ConfigError(f"--pairs must be one of {', '.join(PAIR_MODES)}, got {pairs!r}")
     cfg = _load_sfm_config(config)
     fusion_cfg = FusionConfig(max_depth=max_depth)
-    seq, indices = open_frames(dataset, frames)
-    if len(indices) < 2:
-        raise ConfigError(f"--frames must list at least 2 frames for SfM, got {len(indices)}")
+    seq, indices = open_frames(dataset, fmt, frames, min_frames=2, what="SfM")
     if master is None:
         master = indices[0]
     if master not in indices:

@@ -7,19 +7,8 @@ from pathlib import Path
 import typer
 
 from codeslam.cli.app import app
+from codeslam.cli.common import JsonOut, parse_size
 from codeslam.errors import ConfigError
-
-
-def parse_size(size: str) -> tuple[int, int]:
-    """``"WxH"`` -> (W, H) with positive integers; ConfigError otherwise."""
-    parts = size.lower().split("x")
-    try:
-        w, h = (int(p) for p in parts)
-    except ValueError:
-        raise ConfigError(f"--size must look like 256x192, got {size!r}") from None
-    if w < 8 or h < 8 or w > 4096 or h > 4096:
-        raise ConfigError(f"--size must be between 8x8 and 4096x4096, got {size!r}")
-    return w, h
 
 
 @app.command("synth")
@@ -41,7 +30,7 @@ def synth_command(
     ),
     noise: float = typer.Option(0.0, "--noise", help="Std of Gaussian sensor noise on [0, 1] colours."),
     blur: float = typer.Option(0.0, "--blur", help="Std (pixels) of a Gaussian sensor blur."),
-    json_out: Path | None = typer.Option(None, "--json", help="Write a JSON summary here."),
+    json_out: JsonOut = None,
 ) -> None:
     """Render procedurally generated rooms: TUM RGB-D sequences, or with --train shards of random views."""
     import torch

@@ -12,16 +12,8 @@ from pathlib import Path
 import typer
 
 from codeslam.cli.app import app
+from codeslam.cli.common import Device, Threads, parse_size
 from codeslam.errors import ConfigError
-
-
-def _parse_size(size: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in size.lower().split("x"))
-    except ValueError:
-        raise ConfigError(f"--size must look like WIDTHxHEIGHT (e.g. 128x96), got {size!r}") from None
-    return w, h
-
 
 #: training options a resumed run may change
 _RESUME_MUTABLE = ("steps", "workers", "device")
@@ -55,31 +47,29 @@ def train_command(
     size: str | None = typer.Option(None, "--size", help="Canonical image size WIDTHxHEIGHT, multiples of 16."),
     workers: int | None = typer.Option(None, "--workers", help="Threads that load and resample dataset frames."),
     seed: int | None = typer.Option(None, "--seed", help="Seed of weights, data order and augmentation."),
-    device: str | None = typer.Option(None, "--device", help="cpu, cuda or cuda:N."),
+    device: Device = None,
     stop_after: int | None = typer.Option(None, "--stop-after", help="Stop (with a checkpoint) after this many "
                                           "steps as if interrupted; --resume continues it."),
-    threads: int | None = typer.Option(None, "--threads", help="torch CPU threads (default: torch's choice; "
-                                       "under torchrun on CPU: cores / processes)."),
+    threads: Threads = None,
     no_progress: bool = typer.Option(False, "--no-progress", help="No progress bar (log lines only)."),
 ) -> None:
-    """Train the intensity-conditioned depth auto-encoder (paper Sec. 2) and write RUN/weights.safetensors."""
-    import torch
-
+    """Train the intensity-conditioned depth auto-encoder (paper Sec. 2) and write RUN/weights.safetensors.
+    Under torchrun on CPU, --threads defaults to the cores divided by the processes."""
+    from codeslam.cli.common import check_device, set_threads
     from codeslam.network.config import RunConfig, load_run_config, overlay
     from codeslam.network.train import read_run_config, train
 
-    if threads is not None:
-        if threads < 1:
-            raise ConfigError(f"--threads must be >= 1, got {threads}")
-        torch.set_num_threads(threads)
-    elif int(os.environ.get("LOCAL_WORLD_SIZE", "1")) > 1 and not (device or "").startswith("cuda"):
-        torch.set_num_threads(max(1, (os.cpu_count() or 1) // int(os.environ["LOCAL_WORLD_SIZE"])))
+    if device is not None:
+        check_device(device)
+    if threads is None and int(os.environ.get("LOCAL_WORLD_SIZE", "1")) > 1 and not (device or "").startswith("cuda"):
+        threads = max(1, (os.cpu_count() or 1) // int(os.environ["LOCAL_WORLD_SIZE"]))  # under torchrun on CPU
+    set_threads(threads)
 
     net_opts: dict = {}
     if code_size is not None:
         net_opts["code_size"] = code_size
     if size is not None:
-        net_opts["width"], net_opts["height"] = _parse_size(size)
+        net_opts["width"], net_opts["height"] = parse_size(size, limits=None)  # NetworkConfig checks them
     train_opts = {k: v for k, v in dict(steps=steps, batch_size=batch_size, workers=workers, seed=seed,
                                          device=device).items() if v is not None}
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from codeslam.cli import main
 from codeslam.cli.common import check_device, parse_frames, parse_size, progress_bar, set_threads
 from codeslam.errors import ConfigError
 
@@ -56,6 +57,26 @@ def test_frames_minimum_and_order():
     with pytest.raises(ConfigError, match="must increase"):
         parse_frames("5,3", 9, what="SLAM", increasing=True)
     assert parse_frames("5,3", 9) == [5, 3]
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    root = tmp_path_factory.mktemp("common")
+    assert main(["synth", str(root), "--scenes", "1", "--frames", "4", "--size", "32x24", "--seed", "1"]) == 0
+    return root / "scene_000"
+
+
+@pytest.mark.parametrize("spec", ["0:x", "9", "1,1"])
+def test_every_dataset_command_gives_the_same_frames_error(sequence, tmp_path, capsys, spec):
+    """depth, sfm and slam read --frames with one parser, so a bad one gets the same line from each."""
+    lines = []
+    for cmd in (["depth"], ["sfm"], ["slam", "--depth-model", "standin", "--out", str(tmp_path / "o")]):
+        rc = main([cmd[0], str(sequence), "--frames", spec, *cmd[1:]])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and err.startswith("codeslam: error: --frames") and "\n" not in err, (cmd, err)
+        lines.append(err)
+    assert lines[0] == lines[1] == lines[2]
+    assert not (tmp_path / "o").exists()
 
 
 def test_device_check():

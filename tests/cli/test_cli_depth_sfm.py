@@ -17,10 +17,8 @@ from plyfile import PlyData
 from safetensors.torch import save_file
 
 from codeslam.cli import main
-from codeslam.cli.depth import parse_frames
 from codeslam.data.registry import open_dataset
 from codeslam.data.trajectory import read_tum
-from codeslam.errors import ConfigError, DatasetError
 from codeslam.geometry.proximity import depth_to_prox
 from codeslam.network import CodeNetwork, NetworkConfig, save_weights
 
@@ -50,18 +48,6 @@ def work(tmp_path_factory) -> dict[str, Path]:
     save_file({"x": torch.zeros(3)}, str(root / "other.safetensors"), metadata={"format": "something-else"})
     return {"root": root, "seq": seq, "weights": root / "tiny.safetensors", "fast": root / "fast.yaml",
             "nodepth": nodepth, "junk": root / "junk.safetensors", "other": root / "other.safetensors"}
-
-
-def test_parse_frames():
-    assert parse_frames("0,5,3", 10) == [0, 5, 3]
-    assert parse_frames("0:10:4", 10) == [0, 4, 8]
-    assert parse_frames("2:,0", 5) == [2, 3, 4, 0]
-    for bad in ("a", "1:2:0", "", "1,1", "1:2:3:4"):
-        with pytest.raises(ConfigError):
-            parse_frames(bad, 10)
-    for bad in ("10", "0:11", "-1"):
-        with pytest.raises(DatasetError):
-            parse_frames(bad, 10)
 
 
 def test_depth_cli_writes_depth_uncertainty_panels_and_metrics(work, tmp_path: Path, capsys):

@@ -1,0 +1,193 @@
+"""The run report: reading a run folder (optional files absent or present), the page's sections and figures with
+and without ground truth, the status timeline from frames.csv or from the summary, and one-line errors for a folder
+that is not a run. Built on a small hand-made run (no SLAM), so each case takes a fraction of a second; the
+end-to-end report of a real run, opened in a browser, is tests/report/test_report_browser.py."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+from html.parser import HTMLParser
+
+import numpy as np
+import pytest
+import torch
+
+from codeslam.data.trajectory import Trajectory, write_tum
+from codeslam.errors import DatasetError
+from codeslam.eval.slam_run import evaluate_run
+from codeslam.recon.fusion import PointCloud
+from codeslam.recon.ply import write_ply
+from codeslam.report import build_html, load_run, report_figures, write_report
+from codeslam.report.figures import MAX_MAP_POINTS, panel_keyframes, subsample, view_axes
+from codeslam.report.html import failure_counts
+from codeslam.report.run import frame_statuses
+
+N, H, W = 30, 12, 16
+
+
+def _circle_poses(n: int) -> np.ndarray:
+    """(n, 4, 4) upright cameras (image-down = world -z) on a circle of radius 1 at height 1.5, looking along it."""
+    T = np.tile(np.eye(4), (n, 1, 1))
+    for k, th in enumerate(np.linspace(0, 1.5, n)):
+        fwd = np.array([-math.sin(th), math.cos(th), 0.0])
+        down = np.array([0.0, 0.0, -1.0])
+        T[k, :3, :3] = np.stack([np.cross(down, fwd), down, fwd], axis=1)  # columns x (right), y (down), z
+        T[k, :3, 3] = [math.cos(th), math.sin(th), 1.5]
+    return T
+
+
+def _make_run(root, with_gt: bool = True, with_frames_csv: bool = False, npz_extra: bool = False):
+    """A run folder as the SLAM runner writes it: the estimate is the ground truth seen from the first camera,
+    scaled by 0.8, with a little noise."""
+    root.mkdir(parents=True, exist_ok=True)
+    stamps = np.arange(N) / 30.0
+    gt = _circle_poses(N)
+    est = np.linalg.inv(gt[0]) @ gt
+    est[:, :3, 3] *= 0.8
+    est[:, :3, 3] += np.random.default_rng(0).normal(scale=0.002, size=(N, 3))
+    est_traj, gt_traj = Trajectory(stamps, est), Trajectory(stamps, gt)
+    write_tum(root / "trajectory.txt", est_traj)
+    kf = [0, 9, 18, 27]
+    summary = {"dataset": "hand-made", "format": "tum", "frames": N, "first_frame": 0, "last_frame": N - 1,
+               "keyframes": len(kf), "keyframe_frames": kf, "tracking_failures": 2, "failed_frames": [12, 13],
+               "marginalised": 0, "width": W, "height": H, "fps": 3.5, "fps_with_io": 3.4, "wall_s": 8.8,
+               "ms_per_frame": {"read": 1.0, "track": 100.0, "window": 150.0},
+               "ms_per_keyframe": {"window": 1000.0}, "depth_model": "network"}
+    if with_gt:
+        write_tum(root / "groundtruth.txt", gt_traj)
+        summary.update(evaluate_run(est_traj, gt_traj))
+    (root / "result.json").write_text(json.dumps(summary))
+    depth = np.full((len(kf), H, W), 2.0, dtype=np.float32) + np.linspace(0, 1, W, dtype=np.float32)
+    arrays = {"id": np.arange(len(kf)), "frame_index": np.array(kf), "timestamp": stamps[kf], "T_wc": est[kf],
+              "code": np.zeros((len(kf), 8)), "depth": depth,
+              "image": np.random.default_rng(1).random((len(kf), 3, H, W)).astype(np.float32),
+              "camera": np.array([20.0, 20.0, (W - 1) / 2, (H - 1) / 2, W, H])}
+    if npz_extra:
+        arrays["depth_zero"] = depth * 1.1
+        arrays["uncertainty"] = np.full_like(depth, 0.1)
+        gt_depth = depth * 0.9
+        gt_depth[1] = np.nan  # no ground truth for keyframe 1
+        arrays["depth_gt"] = gt_depth
+    np.savez_compressed(root / "keyframes.npz", **arrays)
+    xyz = np.random.default_rng(2).normal(size=(500, 3)).astype(np.float32) + [0, 0, 2]
+    write_ply(root / "map.ply", PointCloud(torch.from_numpy(xyz), torch.full((500, 3), 128, dtype=torch.uint8)))
+    if with_frames_csv:
+        with open(root / "frames.csv", "w", newline="") as f:
+            w = csv.writer(f)
+            w.writerow(["frame", "timestamp", "status", "reason", "is_keyframe", "keyframe_reason", "inlier_ratio"])
+            for i in range(N):
+                status = "initialising" if i == 0 else "predicted" if i in (12, 13) else "tracked"
+                reason = "too few inliers" if i == 12 else "residual too high" if i == 13 else ""
+                w.writerow([i, stamps[i], status, reason, int(i in kf), "baseline" if i in kf[1:] else "",
+                            "" if i == 0 else 0.8])
+    return root
+
+
+def _scripts(page: str) -> list[tuple[dict, str]]:
+    """(attributes, text) of every <script> element, parsed as a browser does (script text is not markup)."""
+    out = []
+
+    class Parser(HTMLParser):
+        def handle_starttag(self, tag, attrs):
+            if tag == "script":
+                out.append((dict(attrs), ""))
+
+        def handle_data(self, data):
+            if self.lasttag == "script" and out:
+                out[-1] = (out[-1][0], out[-1][1] + data)
+
+    Parser().feed(page)
+    return out
+
+
+def test_report_with_ground_truth_has_metrics_and_every_figure(tmp_path):
+    root = _make_run(tmp_path / "run")
+    path = write_report(root)
+    assert path == root / "report.html"
+    page = path.read_text()
+    summary = json.loads((root / "result.json").read_text())
+    assert "Accuracy against ground truth" in page
+    # the numbers of result.json, beside the never-moving camera's
+    for key in ("ate_se3_rmse", "ate_sim3_rmse", "no_motion_ate_rmse_aligned", "no_motion_ate_rmse", "rpe_trans_rmse"):
+        assert f"{summary[key]:.4f}" in page, key
+    assert f"{summary['rot_err_rmse_deg']:.3f} RMSE" in page
+    ids = re.findall(r'<div id="(fig-[a-z]+)" class="plotly-graph-div"', page)
+    assert ids == ["fig-trajectory", "fig-drift", "fig-status", "fig-keyframes", "fig-map"]
+    # self-contained: plotly.js inline once (the largest script), then one small script per figure, none loaded
+    scripts = _scripts(page)
+    assert len(scripts) == 1 + len(ids) and not any("src" in attrs for attrs, _ in scripts)
+    sizes = sorted(len(text) for _, text in scripts)
+    assert sizes[-1] > 1_000_000 and sizes[-2] < 1_000_000
+    assert not list(root.glob(".report.html.*"))  # no temporary left behind
+
+
+def test_report_without_ground_truth_has_no_metrics_section(tmp_path):
+    root = _make_run(tmp_path / "run", with_gt=False)
+    run = load_run(root)
+    assert run.groundtruth is None and not run.has_metrics and run.frames is None
+    page = build_html(run)
+    assert "Accuracy against ground truth" not in page and "never-moving" not in page
+    assert [i for i, _, _ in report_figures(run)] == ["fig-trajectory", "fig-status", "fig-keyframes", "fig-map"]
+    assert "no ground truth" in page
+
+
+def test_statuses_come_from_frames_csv_when_the_run_has_one(tmp_path):
+    run = load_run(_make_run(tmp_path / "a", with_frames_csv=True))
+    idx, status, reason = frame_statuses(run)
+    assert list(idx) == list(range(N)) and status[12] == "predicted" and reason[13] == "residual too high"
+    assert failure_counts(run) == ({"too few inliers": 1, "residual too high": 1}, "frames.csv")
+    assert np.isnan(run.frames["inlier_ratio"][0]) and run.frames["inlier_ratio"][1] == 0.8
+    # without it, from result.json's failed frames
+    run = load_run(_make_run(tmp_path / "b"))
+    idx, status, _ = frame_statuses(run)
+    assert list(idx) == list(range(N)) and status[0] == "initialising"
+    assert [i for i, s in zip(idx, status) if s == "failed"] == [12, 13]
+    assert failure_counts(run) == ({"reason not recorded": 2}, "result.json")
+    run.summary["failures_by_reason"] = {"lost": 2}
+    assert failure_counts(run) == ({"lost": 2}, "result.json")
+
+
+def test_keyframe_panels_show_what_the_run_stored(tmp_path):
+    run = load_run(_make_run(tmp_path / "a"))  # depth and image only
+    fig = dict((i, f) for i, f, _ in report_figures(run))["fig-keyframes"]
+    title = fig.layout.title.text
+    assert "not available in this run: zero-code depth, uncertainty, ground-truth depth" in title
+    run = load_run(_make_run(tmp_path / "b", npz_extra=True))
+    fig = dict((i, f) for i, f, _ in report_figures(run))["fig-keyframes"]
+    titles = [a.text for a in fig.layout.annotations]
+    assert "not available in this run" not in fig.layout.title.text
+    assert titles.count("ground-truth depth: not available") == 1  # keyframe 1 has none
+    assert "uncertainty" in titles and "zero-code depth" in titles
+
+
+def test_view_axes_find_up_from_upright_cameras():
+    gt = _circle_poses(20)
+    e1, e2, up = view_axes(gt)
+    np.testing.assert_allclose(up, [0, 0, 1], atol=1e-9)
+    np.testing.assert_allclose(np.stack([e1, e2, up]) @ np.stack([e1, e2, up]).T, np.eye(3), atol=1e-9)
+    assert np.linalg.det(np.stack([e1, e2, up])) > 0
+    est = np.linalg.inv(gt[0]) @ gt  # seen from the first camera: image-down is +y, so up is -y
+    np.testing.assert_allclose(view_axes(est)[2], [0, -1, 0], atol=1e-9)
+
+
+def test_helpers_cap_points_and_spread_keyframes():
+    cloud = PointCloud(torch.zeros(MAX_MAP_POINTS + 10, 3), torch.zeros(MAX_MAP_POINTS + 10, 3, dtype=torch.uint8))
+    assert len(subsample(cloud)[0]) == MAX_MAP_POINTS
+    assert panel_keyframes(3) == [0, 1, 2] and panel_keyframes(10) == [0, 3, 6, 9]
+
+
+def test_a_folder_that_is_not_a_run_is_a_one_line_error(tmp_path):
+    with pytest.raises(DatasetError, match="not found"):
+        load_run(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(DatasetError, match="result.json is missing"):
+        write_report(tmp_path / "empty")
+    assert not (tmp_path / "empty" / "report.html").exists()
+    root = _make_run(tmp_path / "bad")
+    (root / "result.json").write_text("{not json")
+    with pytest.raises(DatasetError, match="cannot read"):
+        write_report(root)
+    assert not (root / "report.html").exists()
