@@ -12,6 +12,7 @@ so ``--scenes 2 --frames 40`` takes about a minute on one core (``--workers`` sp
 
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 
@@ -22,6 +23,7 @@ from codeslam.data.trajectory import Trajectory, write_tum
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera, canonical_camera
 from codeslam.io import atomic_write, ensure_dir
+from codeslam.synth.motion import get_preset, preset_trajectory
 from codeslam.synth.render import RenderConfig, render
 from codeslam.synth.scene import build_scene
 from codeslam.synth.shards import DEPTH_FACTOR
@@ -47,19 +49,30 @@ def generate_sequence(
     camera: PinholeCamera | None = None,
     config: RenderConfig = RenderConfig(),
     fps: float = DEFAULT_FPS,
+    motion: str | None = None,
 ) -> dict:
     """Build the room of ``seed``, move a camera through it and write the sequence to ``out_dir``.
 
-    Returns a summary: path, frames, seconds, primitives, path_length (metres).
+    ``motion`` names a preset of :mod:`codeslam.synth.motion` (``handheld``, ``walk``, ``fast-turn``: a person
+    carrying the camera, in a room of the preset's size); None keeps the default slow path (and every seed's
+    bytes as before presets existed).
+    Returns a summary: path, frames, seconds, primitives, path_length (metres), motion.
     """
     if frames < 1:
         raise CodeSLAMError(f"--frames must be at least 1, got {frames}")
+    if not (math.isfinite(fps) and fps > 0):
+        raise CodeSLAMError(f"--fps must be positive, got {fps}")
+    preset = None if motion is None else get_preset(motion)
     camera = canonical_camera(256, 192) if camera is None else camera
     out_dir = Path(out_dir)
     t0 = time.perf_counter()
-    scene = build_scene(seed)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7247]))
-    poses = random_trajectory(scene, frames, rng, fps=fps)
+    if preset is None:
+        scene = build_scene(seed)
+        poses = random_trajectory(scene, frames, rng, fps=fps)
+    else:
+        scene = build_scene(seed, room=preset.room)
+        poses = preset_trajectory(scene, frames, rng, preset, fps=fps)
     stamps = SEQUENCE_T0 + np.arange(frames) / fps
     names = [f"{t:.6f}" for t in stamps]
     for a in range(0, frames, FRAME_BATCH):
@@ -82,6 +95,7 @@ def generate_sequence(
         "seconds": time.perf_counter() - t0,
         "primitives": scene.num_primitives,
         "path_length": traj.path_length,
+        "motion": preset.name if preset else None,
     }
 
 
@@ -99,18 +113,24 @@ def generate_sequences(
     fps: float = DEFAULT_FPS,
     progress=None,
     workers: int = 1,
+    motion: str | None = None,
 ) -> dict:
     """Write ``scenes`` sequences ``out_dir/scene_000`` ... (``workers > 1``: that many processes, one
-    sequence each at a time, one torch thread each; the output does not depend on it). Returns a summary
-    dict (scenes, frames, size, seed, seconds, fps, paths)."""
+    sequence each at a time, one torch thread each; the output does not depend on it); ``motion`` and ``fps``
+    as in :func:`generate_sequence`. Returns a summary dict (scenes, frames, size, seed, motion,
+    frame_rate, seconds, fps (frames rendered per second), paths)."""
     if scenes < 1:
         raise CodeSLAMError(f"--scenes must be at least 1, got {scenes}")
     if frames < 1:
         raise CodeSLAMError(f"--frames must be at least 1, got {frames}")
+    if not (math.isfinite(fps) and fps > 0):
+        raise CodeSLAMError(f"--fps must be positive, got {fps}")
+    if motion is not None:
+        get_preset(motion)  # an unknown name fails before any work
     ensure_dir(out_dir)  # fails before rendering when OUT (or a parent) is a file
     camera = canonical_camera(256, 192) if camera is None else camera
     t0 = time.perf_counter()
-    jobs = [(Path(out_dir) / f"scene_{i:03d}", scene_seed(seed, i), frames, camera, config, fps)
+    jobs = [(Path(out_dir) / f"scene_{i:03d}", scene_seed(seed, i), frames, camera, config, fps, motion)
             for i in range(scenes)]
     paths = []
     if workers <= 1:
@@ -136,6 +156,8 @@ def generate_sequences(
         "frames": frames,
         "size": [camera.width, camera.height],
         "seed": seed,
+        "motion": motion,
+        "frame_rate": fps,
         "seconds": seconds,
         "fps": scenes * frames / seconds if seconds > 0 else 0.0,
         "paths": paths,

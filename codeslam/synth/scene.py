@@ -816,14 +816,67 @@ def _lights(b: _Builder):
     return pos_a, rgb_a, amb
 
 
-def build_scene(seed: int, clutter: float = 1.0) -> Scene:
-    """Draw a room from ``seed``. ``clutter`` scales the number of furniture and clutter items."""
+def _spread_lights(b: _Builder):
+    """Ceiling lights on a jittered grid over the whole room (large rooms, corridors), exposed so that the
+    mean unshadowed irradiance over the floor is what :func:`_lights` gives at a small room's centre."""
+    n = int(np.clip(round(b.W * b.D / AREA_PER_LIGHT), 1, MAX_LIGHTS))
+    nx = max(1, int(round(math.sqrt(n * b.W / b.D))))
+    ny = max(1, int(math.ceil(n / nx)))
+    pos, rgb = [], []
+    for i in range(nx):
+        for j in range(ny):
+            if len(pos) == n:
+                break
+            x = (i + 0.5 + b.rng.uniform(-0.2, 0.2)) * b.W / nx
+            y = (j + 0.5 + b.rng.uniform(-0.2, 0.2)) * b.D / ny
+            z = b.H - b.rng.uniform(0.12, 0.35)
+            temp = b.rng.uniform(-1, 1)
+            col = np.array([1.0 - 0.15 * temp, 1.0, 1.0 + 0.2 * temp]) * np.array([1.0, 0.95, 0.85])
+            pos.append((x, y, z))
+            rgb.append(col * b.rng.uniform(0.7, 1.3))
+            fixture = b.mat(tx.PAINT, _hsv(0.1, 0.05, 0.95), _hsv(0.1, 0.05, 0.95), emissive=3.0, amp=0.02)
+            r = b.rng.uniform(0.1, 0.3)
+            b.add(CYLINDER, (x, y, b.H - 0.02), (r, r, 0.02), 0.0, fixture)
+    pos_a, rgb_a = np.array(pos), np.array(rgb)
+    gx, gy = np.meshgrid((np.arange(5) + 0.5) / 5 * b.W, (np.arange(5) + 0.5) / 5 * b.D)
+    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], -1)
+    d = pos_a[None, :, :] - floor[:, None, :]
+    dist2 = (d**2).sum(-1)
+    e = (rgb_a.mean(-1)[None] * (d[..., 2] / np.sqrt(dist2)) / (dist2 + LIGHT_SOFTENING**2)).sum(-1).mean()
+    rgb_a = rgb_a * (b.rng.uniform(0.9, 1.7) / e)
+    amb = np.array([1.0, 1.0, 1.0]) * b.rng.uniform(0.25, 0.5) * np.array([0.95, 0.98, 1.05])
+    return pos_a, rgb_a, amb
+
+
+@dataclass(frozen=True)
+class RoomSize:
+    """Ranges (metres) from which a room's width (x), depth (y) and ceiling height are drawn."""
+
+    width: tuple[float, float] = (3.0, 7.0)
+    depth: tuple[float, float] = (3.0, 7.5)
+    height: tuple[float, float] = (2.4, 3.1)
+
+
+#: The rooms of data version 1 (and of every seed built without a size): 3-7 m, ceilings 2.4-3.1 m.
+DEFAULT_ROOM = RoomSize()
+# Floor area (m²) lit by one ceiling light in rooms with a non-default size, and the most lights drawn (each
+# light costs a shadow ray per pixel).
+AREA_PER_LIGHT = 16.0
+MAX_LIGHTS = 6
+
+
+def build_scene(seed: int, clutter: float = 1.0, room: RoomSize | None = None) -> Scene:
+    """Draw a room from ``seed``. ``clutter`` scales the number of furniture and clutter items; ``room``
+    (default :data:`DEFAULT_ROOM`) gives the ranges of its size. Rooms of another size get ceiling lights
+    spread over the whole floor (one per AREA_PER_LIGHT m²) instead of 1-3 near the middle; a seed built
+    without ``room`` is the same scene as before sizes could be chosen."""
     b = _Builder(seed)
     rng = b.rng
-    b.W, b.D, b.H = rng.uniform(3.0, 7.0), rng.uniform(3.0, 7.5), rng.uniform(2.4, 3.1)
+    size = room or DEFAULT_ROOM
+    b.W, b.D, b.H = rng.uniform(*size.width), rng.uniform(*size.depth), rng.uniform(*size.height)
     room_mats = _room_materials(b)
     _baseboards(b)
-    pos, rgb, amb = _lights(b)
+    pos, rgb, amb = _lights(b) if room is None or room == DEFAULT_ROOM else _spread_lights(b)
     area = b.W * b.D
     if rng.random() < 0.55:
         _rug(b)

@@ -51,3 +51,23 @@ def test_albedo_is_deterministic_and_in_range():
     assert float(a1.min()) >= 0.0 and float(a1.max()) <= 1.0
     v = tx.value_noise3(torch.rand(1000, 3) * 20)
     assert float(v.min()) >= 0.0 and float(v.max()) <= 1.0 and float(v.std()) > 0.05
+
+
+def test_default_rooms_keep_their_seeds_and_sized_rooms_follow_their_ranges():
+    from codeslam.synth.scene import MAX_LIGHTS, RoomSize
+
+    # the rooms of seeds 21 and 4 as they were built before room sizes could be chosen (values recorded then)
+    a = build_scene(21)
+    assert a.size == (3.7748947143554688, 3.856085777282715, 3.0317375659942627) and a.num_primitives == 60
+    assert build_scene(4).num_primitives == 123 and build_scene(4).light_pos.shape[0] == 3
+    assert build_scene(21, room=RoomSize()).num_primitives == 60  # the default size is the default room
+    big = RoomSize(width=(12.0, 14.0), depth=(9.0, 10.0), height=(3.4, 3.8))
+    for seed in range(3):
+        s = build_scene(seed, room=big)
+        W, D, H = s.size
+        assert 12.0 <= W <= 14.0 and 9.0 <= D <= 10.0 and 3.4 <= H <= 3.8
+        n = s.light_pos.shape[0]
+        assert 4 <= n <= MAX_LIGHTS
+        # lights spread over the room, not bunched in its middle
+        assert float(s.light_pos[:, 0].max() - s.light_pos[:, 0].min()) > 0.4 * W
+        assert s.num_primitives > 100  # furniture scales with the floor area
