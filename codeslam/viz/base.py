@@ -1,35 +1,22 @@
-"""The viewer interface and the viewer that shows nothing (the default)."""
+"""The viewer interface and the viewer that shows nothing (the default).
+
+The SLAM runner calls it, so it sits below the SLAM package and imports nothing of it: ``result`` and ``system``
+are whatever the runner passes (a :class:`~codeslam.slam.system.FrameResult` and the
+:class:`~codeslam.slam.system.CodeSLAM` that produced it).
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
-from codeslam.errors import ConfigError
-
-if TYPE_CHECKING:  # annotations only: the viewer layer never imports the algorithm at run time
-    from codeslam.data.frame import Frame
-    from codeslam.slam.system import CodeSLAM, FrameResult
-
-#: The viewers ``--viewer`` accepts.
-VIEWERS = ("none", "rerun")
+from codeslam.data.frame import Frame
 
 
 class Visualizer:
     """Receives every processed frame; this base class shows nothing (kiss-icp's StubVisualizer)."""
 
-    def update(self, frame: Frame, result: FrameResult, system: CodeSLAM) -> None:
+    def update(self, frame: Frame, result: Any, system: Any) -> None:
         """Called after ``system.process(frame)`` returned ``result``."""
 
     def close(self) -> None:
         """Called once after the last frame."""
-
-
-def make_visualizer(name: str, **kwargs) -> Visualizer:
-    """The viewer called ``name`` (one of :data:`VIEWERS`); ``kwargs`` go to its constructor."""
-    if name == "none":
-        return Visualizer()
-    if name == "rerun":
-        from codeslam.viz.rerun_viewer import RerunVisualizer
-
-        return RerunVisualizer(**kwargs)
-    raise ConfigError(f"unknown viewer {name!r}; choose one of {', '.join(VIEWERS)}")
