@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from codeslam.cli.app import app
-from codeslam.cli.common import JsonOut, parse_size
+from codeslam.cli.common import JsonOut, Quiet, parse_size
 from codeslam.errors import ConfigError
 
 
@@ -15,7 +15,13 @@ from codeslam.errors import ConfigError
 def synth_command(
     out: Path = typer.Argument(..., help="Output folder."),
     scenes: int = typer.Option(1, "--scenes", help="Number of sequences (scene_000, scene_001, ...)."),
-    frames: int = typer.Option(100, "--frames", help="Frames per sequence (30 per second)."),
+    frames: int = typer.Option(100, "--frames", help="Frames per sequence (at --fps frames per second)."),
+    motion: str | None = typer.Option(
+        None, "--motion", help="Camera path preset: handheld (0.3-0.6 m/s, up to 45 deg/s), walk (0.8-1.5 m/s "
+        "through a large room, up to 60 deg/s), fast-turn (standing, pans up to 90 deg/s); default: the slow "
+        "original path."),
+    fps: float = typer.Option(30.0, "--fps", help="Frames per second of the sequences (the motion per frame "
+                              "follows from the preset's speeds)."),
     seed: int = typer.Option(0, "--seed", help="Base seed: the same seed gives byte-identical output."),
     size: str | None = typer.Option(
         None, "--size", help="Image size WxH (default 256x192 for sequences, 128x96 for --train)."
@@ -31,17 +37,26 @@ def synth_command(
     noise: float = typer.Option(0.0, "--noise", help="Std of Gaussian sensor noise on [0, 1] colours."),
     blur: float = typer.Option(0.0, "--blur", help="Std (pixels) of a Gaussian sensor blur."),
     json_out: JsonOut = None,
+    quiet: Quiet = False,
 ) -> None:
     """Render procedurally generated rooms: TUM RGB-D sequences, or with --train shards of random views."""
     import torch
     from rich.console import Console
 
+    from codeslam.cli.common import progress_bar
     from codeslam.geometry.camera import canonical_camera
     from codeslam.io import check_output_dir, check_output_file, write_json
+    from codeslam.synth.motion import PRESETS
     from codeslam.synth.render import RenderConfig
 
     if workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
+    if motion is not None and motion not in PRESETS:
+        raise ConfigError(f"--motion must be one of {', '.join(PRESETS)}, got {motion!r}")
+    if train and motion is not None:
+        raise ConfigError("--motion sets the camera path of sequences; --train renders random views")
+    if not (fps > 0 and fps < float("inf")):
+        raise ConfigError(f"--fps must be a positive number, got {fps}")
     check_output_dir(out)  # refuse unwritable outputs before rendering
     if json_out is not None:
         check_output_file(json_out)
@@ -60,17 +75,19 @@ def synth_command(
 
         spec = ShardSpec(views=views, camera=camera, seed=seed, views_per_scene=views_per_scene,
                          shard_size=shard_size, render=config)
-        summary = write_shards(spec, out, workers=workers,
-                               progress=lambda d, n: console.print(f"shard {d}/{n}", highlight=False))
+        with progress_bar("shards", spec.num_shards, quiet) as update:
+            summary = write_shards(spec, out, workers=workers, progress=lambda d, n: update(d))
         console.print(f"{summary['views']} views in {summary['shards']} shards under {out} "
                       f"({summary['written']} written, {summary['skipped']} already there, "
                       f"{summary['views_per_second']:.1f} views/s)", highlight=False)
     else:
         from codeslam.synth.generate import generate_sequences
 
-        summary = generate_sequences(out, scenes, frames, seed=seed, camera=camera, config=config, workers=workers,
-                                     progress=lambda d, n: console.print(f"scene {d}/{n}", highlight=False))
-        console.print(f"{scenes} sequences of {frames} frames ({w}x{h}) under {out} in "
-                      f"{summary['seconds']:.1f} s ({summary['fps']:.1f} frames/s)", highlight=False)
+        with progress_bar("scenes", scenes, quiet) as update:
+            summary = generate_sequences(out, scenes, frames, seed=seed, camera=camera, config=config, fps=fps,
+                                         workers=workers, motion=motion, progress=lambda d, n: update(d))
+        path = f"'{motion}' paths at {fps:g} frames/s" if motion else f"the default path at {fps:g} frames/s"
+        console.print(f"{scenes} sequences of {frames} frames ({w}x{h}, {path}) under {out} in "
+                      f"{summary['seconds']:.1f} s ({summary['fps']:.1f} frames/s rendered)", highlight=False)
     if json_out is not None:
         write_json(json_out, summary)
