@@ -19,6 +19,7 @@ from codeslam.data.folder import FolderSequence
 from codeslam.data.scenenet import SceneNetSequence
 from codeslam.data.tartanair import TartanAirSequence
 from codeslam.data.tum import TumSequence
+from codeslam.data.video import VIDEO_SUFFIXES, VideoSequence, is_video_file
 from codeslam.errors import ConfigError, DatasetError
 
 FORMATS: dict[str, type[Sequence]] = {
@@ -27,6 +28,7 @@ FORMATS: dict[str, type[Sequence]] = {
     "scenenet": SceneNetSequence,
     "tartanair": TartanAirSequence,
     "folder": FolderSequence,
+    "video": VideoSequence,
 }
 
 #: What each format's detector looks for, for error messages.
@@ -36,17 +38,20 @@ FORMAT_MARKERS: dict[str, str] = {
     "scenenet": "photo/ and depth/",
     "tartanair": "image_left/",
     "folder": "camera.yaml",
+    "video": "a video file (" + ", ".join(VIDEO_SUFFIXES[:4]) + ", ...)",
 }
 
 
 def detect_format(path: str | Path) -> str:
-    """The name of the one format ``path`` looks like; DatasetError when it is missing, not a folder,
-    of no known format, or looks like several."""
+    """The name of the one format ``path`` looks like (a file: a video, by its extension); DatasetError when it is
+    missing, a file that is not a video, a folder of no known format, or looks like several."""
     path = Path(path)
     if not path.exists():
         raise DatasetError(f"dataset path not found: {path}")
     if not path.is_dir():
-        raise DatasetError(f"dataset path is not a folder: {path}")
+        if is_video_file(path):
+            return "video"
+        raise DatasetError(f"{path} is a file but neither a dataset folder nor a video ({', '.join(VIDEO_SUFFIXES)})")
     matches = [name for name, cls in FORMATS.items() if cls.detect(path)]
     if not matches:
         expected = "; ".join(f"{name}: {marker}" for name, marker in FORMAT_MARKERS.items())
