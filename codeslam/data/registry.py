@@ -51,7 +51,7 @@ def detect_format(path: str | Path) -> str:
     if not path.is_dir():
         if is_video_file(path):
             return "video"
-        raise DatasetError(f"{path} is a file but neither a dataset folder nor a video ({', '.join(VIDEO_SUFFIXES)})")
+        raise DatasetError(f"dataset path is not a folder, nor a video file ({', '.join(VIDEO_SUFFIXES)}): {path}")
     matches = [name for name, cls in FORMATS.items() if cls.detect(path)]
     if not matches:
         expected = "; ".join(f"{name}: {marker}" for name, marker in FORMAT_MARKERS.items())

@@ -552,7 +552,7 @@ def test_registry_detects_every_format(tmp_path):
     assert detect_format(sn) == "scenenet"
     assert detect_format(tmp_path / "ta") == "tartanair"
     assert detect_format(tmp_path / "folder") == "folder"
-    assert set(FORMATS) == {"tum", "euroc", "scenenet", "tartanair", "folder"}
+    assert set(FORMATS) == {"tum", "euroc", "scenenet", "tartanair", "folder", "video"}
     assert isinstance(open_dataset(tmp_path / "ta", camera=TA_CAM), TartanAirSequence)
     assert isinstance(open_dataset(sn, format="scenenet", camera=SN_CAM), SceneNetSequence)
     with pytest.raises(ConfigError, match="unknown dataset format 'kitti'"):

@@ -150,5 +150,5 @@ def test_bad_videos_are_one_line_errors(tmp_path):
     assert "\n" not in str(e.value)
     text = tmp_path / "notes.txt"
     text.write_text("x")
-    with pytest.raises(DatasetError, match="neither a dataset folder nor a video"):
+    with pytest.raises(DatasetError, match="not a folder, nor a video file"):
         open_dataset(text)
