@@ -119,7 +119,7 @@ def _metrics(model, cframes, keyframes, result, m: int) -> dict:
     """The master's proximity errors (zero code and optimised) and relative pose errors, None without GT."""
     import torch
 
-    from codeslam.recon.metrics import median_scale, prox_rmse, relative_pose_errors
+    from codeslam.recon.metrics import median_scale, pose_errors_relative_to_frame, prox_rmse
 
     out: dict = dict.fromkeys(("prox_rmse_master", "prox_rmse_master_zero_code", "prox_rmse_master_scale_aligned",
                                "prox_rmse_master_zero_code_scale_aligned", "depth_scale_master", "rel_trans_err",
@@ -141,10 +141,10 @@ def _metrics(model, cframes, keyframes, result, m: int) -> dict:
                 out["depth_scale_master"] = s
     if all(c.pose is not None and bool(torch.isfinite(c.pose).all()) for c in cframes):
         gt_poses = torch.stack([c.pose for c in cframes]).double().numpy()
-        rpe = relative_pose_errors(result.poses.detach().cpu().double().numpy(), gt_poses, m)
-        out.update(rel_trans_err=rpe.trans, rel_trans_err_scale_aligned=rpe.trans_scaled, rel_scale=rpe.scale,
-                   rel_rot_err_deg=rpe.rot_deg, rel_trans_gt=rpe.trans_gt, rel_rot_gt_deg=rpe.rot_gt_deg,
-                   rel_per_frame=[{"trans": a, "trans_scale_aligned": b, "rot_deg": c} for a, b, c in rpe.per_frame])
+        err = pose_errors_relative_to_frame(result.poses.detach().cpu().double().numpy(), gt_poses, m)
+        out.update(rel_trans_err=err.trans, rel_trans_err_scale_aligned=err.trans_scaled, rel_scale=err.scale,
+                   rel_rot_err_deg=err.rot_deg, rel_trans_gt=err.trans_gt, rel_rot_gt_deg=err.rot_gt_deg,
+                   rel_per_frame=[{"trans": a, "trans_scale_aligned": b, "rot_deg": c} for a, b, c in err.per_frame])
     return out
 
 

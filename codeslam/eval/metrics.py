@@ -317,9 +317,10 @@ def pairs_by_path(xyz: np.ndarray, delta: float, rel_tol: float = 0.1, all_pairs
     return np.array(out_i, dtype=np.int64), np.array(out_j, dtype=np.int64)
 
 
-def relative_pose_errors(P: np.ndarray, Q: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+def relative_motion_errors(P: np.ndarray, Q: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """Estimated poses P (N, 4, 4), reference poses Q (N, 4, 4), pairs (K,) -> (K, 4, 4)
-    ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``."""
+    ``E = (Q_i^-1 Q_j)^-1 (P_i^-1 P_j)``: the error of the estimated motion from pose i to pose j (evo's RPE
+    relation), identity when the estimate moved exactly as the reference did."""
     return np.linalg.inv(relative_poses(Q, i, j)) @ relative_poses(P, i, j)
 
 
@@ -384,7 +385,7 @@ def rpe(
         raise CodeSLAMError(
             f"no pose pairs {delta} {delta_unit} apart among the {len(P)} matched poses; use a smaller --delta"
         )
-    E = relative_pose_errors(P, Q, i, j)  # (K, 4, 4)
+    E = relative_motion_errors(P, Q, i, j)  # (K, 4, 4)
     trans_errors = np.linalg.norm(E[:, :3, 3], axis=1)
     rot_errors_deg = np.rad2deg(rotation_angle(E[:, :3, :3]))
     return RPEResult(
@@ -491,7 +492,7 @@ def segment_errors(
         i_ok, j_ok = starts[ok], j[ok]
         if len(i_ok) == 0:
             continue
-        E = relative_pose_errors(P, Q, i_ok, j_ok)
+        E = relative_motion_errors(P, Q, i_ok, j_ok)
         t_err = np.linalg.norm(E[:, :3, 3], axis=1) / L
         r_err = np.rad2deg(rotation_angle(E[:, :3, :3])) / L
         out.append(SegmentError(float(L), len(i_ok), 100.0 * float(t_err.mean()), float(r_err.mean())))

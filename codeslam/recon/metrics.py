@@ -8,7 +8,8 @@
   predictor must beat to carry any information).
 * Relative poses of an SfM result: monocular SfM fixes the scale only through the network's depth prior, so
   translations are reported both as estimated and after the one scale factor that best aligns them to ground
-  truth (:func:`relative_pose_errors`).
+  truth (:func:`pose_errors_relative_to_frame`; not the trajectory RPE of
+  :func:`codeslam.eval.metrics.relative_motion_errors`, which compares motions between pairs of poses).
 """
 
 from __future__ import annotations
@@ -96,7 +97,7 @@ def median_scale(depth_pred: torch.Tensor, depth_gt: torch.Tensor) -> float | No
 
 
 @dataclass(frozen=True)
-class RelativePoseErrors:
+class PoseErrorsRelativeToFrame:
     """Errors of the poses of frames k relative to a reference frame r, ``T_rk = T_wr^-1 T_wk``, over the K
     frames other than r. Means over those frames; ``per_frame`` lists (trans, trans_scaled, rot_deg) each.
 
@@ -118,8 +119,9 @@ class RelativePoseErrors:
     per_frame: list[tuple[float, float, float]]
 
 
-def relative_pose_errors(poses_est: np.ndarray, poses_gt: np.ndarray, ref: int) -> RelativePoseErrors:
-    """(F, 4, 4) estimated and ground-truth T_wc (F >= 2), reference frame index -> :class:`RelativePoseErrors`."""
+def pose_errors_relative_to_frame(poses_est: np.ndarray, poses_gt: np.ndarray, ref: int) -> PoseErrorsRelativeToFrame:
+    """(F, 4, 4) estimated and ground-truth T_wc (F >= 2), index r of the reference frame (SfM's master) ->
+    :class:`PoseErrorsRelativeToFrame`: how wrong each other frame's pose is as seen from frame r."""
     est = np.asarray(poses_est, dtype=np.float64)
     gt = np.asarray(poses_gt, dtype=np.float64)
     others = np.array([k for k in range(len(est)) if k != ref])
@@ -132,7 +134,7 @@ def relative_pose_errors(poses_est: np.ndarray, poses_gt: np.ndarray, ref: int) 
     trans = np.linalg.norm(t_est - t_gt, axis=1)
     trans_scaled = np.linalg.norm((1.0 if scale is None else scale) * t_est - t_gt, axis=1)
     rot = np.degrees(rotation_angle(np.swapaxes(rel_est[:, :3, :3], 1, 2) @ rel_gt[:, :3, :3]))
-    return RelativePoseErrors(
+    return PoseErrorsRelativeToFrame(
         trans=float(trans.mean()),
         trans_scaled=float(trans_scaled.mean()),
         scale=scale,

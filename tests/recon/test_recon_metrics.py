@@ -10,7 +10,7 @@ import torch
 
 from codeslam.geometry.lie import se3_exp
 from codeslam.geometry.proximity import depth_to_prox
-from codeslam.recon.metrics import DepthErrors, median_scale, prox_rmse, relative_pose_errors
+from codeslam.recon.metrics import DepthErrors, median_scale, pose_errors_relative_to_frame, prox_rmse
 
 
 def _frame(seed: int, holes: float = 0.2):
@@ -65,7 +65,7 @@ GT = _poses([[0.3, 0.1, -0.2, 0.1, 0.0, 0.05], [0.5, 0.0, 0.1, 0.0, 0.2, 0.0], [
 
 def test_exact_poses_have_zero_error_in_any_world_frame():
     T = se3_exp(torch.tensor([1.0, 2.0, 3.0, 0.3, -0.2, 0.1], dtype=torch.float64)).numpy()
-    r = relative_pose_errors(T @ GT, GT, ref=1)
+    r = pose_errors_relative_to_frame(T @ GT, GT, ref=1)
     assert r.trans == pytest.approx(0, abs=1e-12) and r.rot_deg == pytest.approx(0, abs=1e-6)
     assert r.scale == pytest.approx(1.0) and len(r.per_frame) == 2
 
@@ -75,7 +75,7 @@ def test_scaled_translations_are_aligned_by_the_least_squares_scale():
     ref = 0
     # scale the world: every relative translation scales by 0.4, rotations unchanged
     est[:, :3, 3] = 0.4 * est[:, :3, 3]
-    r = relative_pose_errors(est, GT, ref)
+    r = pose_errors_relative_to_frame(est, GT, ref)
     assert r.scale == pytest.approx(2.5, rel=1e-9)
     assert r.trans_scaled == pytest.approx(0, abs=1e-12)
     assert r.trans > 0.01 and r.rot_deg == pytest.approx(0, abs=1e-6)
@@ -83,7 +83,7 @@ def test_scaled_translations_are_aligned_by_the_least_squares_scale():
 
 def test_identity_estimate_errs_by_the_ground_truth_motion():
     est = np.repeat(np.eye(4)[None], 3, axis=0)
-    r = relative_pose_errors(est, GT, ref=0)
+    r = pose_errors_relative_to_frame(est, GT, ref=0)
     assert r.trans == pytest.approx(r.trans_gt) and r.rot_deg == pytest.approx(r.rot_gt_deg)
     assert r.scale is None
     rel = np.linalg.inv(GT[0]) @ GT[2]

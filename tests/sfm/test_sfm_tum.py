@@ -28,7 +28,7 @@ import torch
 
 from codeslam.data.registry import open_dataset
 from codeslam.depthmodel import DepthModel
-from codeslam.recon.metrics import prox_rmse, relative_pose_errors
+from codeslam.recon.metrics import pose_errors_relative_to_frame, prox_rmse
 from codeslam.sfm import SfMConfig, master_pairs, sfm
 
 MASTERS = (6, 18, 30, 42)
@@ -50,19 +50,19 @@ def _run_master(model, seq, master):
     before = prox_rmse(dec.prox(zero), gt_prox, gt)
     after = prox_rmse(dec.prox(res.codes[0]), gt_prox, gt)
     gt_poses = torch.stack([f.pose for f in frames]).double().numpy()
-    rpe = relative_pose_errors(res.poses.detach().double().numpy(), gt_poses, 0)
-    return before, after, rpe
+    err = pose_errors_relative_to_frame(res.poses.detach().double().numpy(), gt_poses, 0)
+    return before, after, err
 
 
 def test_close_range_tum_masters_end_well_below_the_zero_code(model, tum_rpy):
     seq = open_dataset(tum_rpy)
     ratios = []
     for m in MASTERS:
-        before, after, rpe = _run_master(model, seq, m)
+        before, after, err = _run_master(model, seq, m)
         ratios.append(after / before)
         # Relative poses close to the ground truth: the rotation error is a small fraction of the motion itself
         # (standing still would score rot_gt_deg; measured 0.5-1.5 deg against 1.8-7.3 deg).
-        assert rpe.rot_deg < 0.5 * rpe.rot_gt_deg and rpe.rot_deg < 2.0, (m, rpe.rot_deg, rpe.rot_gt_deg)
+        assert err.rot_deg < 0.5 * err.rot_gt_deg and err.rot_deg < 2.0, (m, err.rot_deg, err.rot_gt_deg)
         assert after < before, (m, before, after)
     mean = sum(ratios) / len(ratios)
     assert mean <= 0.85, ratios  # the check: at least 15% below the zero code
