@@ -30,6 +30,9 @@ def synth_command(
     views: int = typer.Option(1024, "--views", help="--train: total number of views."),
     views_per_scene: int = typer.Option(16, "--views-per-scene", help="--train: views per random room."),
     shard_size: int = typer.Option(256, "--shard-size", help="--train: views per shard file."),
+    data_version: int = typer.Option(1, "--data-version", help="--train: 1 = furnished rooms of 3-7 m seen from "
+                                     "close by; 2 = also large rooms, open-plan, corridors, ceilings to 4 m and half "
+                                     "the views along the room from standing or sitting height (depth to 13 m)."),
     workers: int = typer.Option(1, "--workers", help="Worker processes (shards or sequences in parallel)."),
     supersample: int | None = typer.Option(
         None, "--supersample", help="Anti-aliasing: s x s colour rays per pixel (default: 2 sequences, 1 --train)."
@@ -68,13 +71,18 @@ def synth_command(
     camera = canonical_camera(w, h)
     if supersample is None:
         supersample = 1 if train else 2
-    config = RenderConfig(supersample=supersample, noise_std=noise, blur_sigma=blur)
+    if data_version != 1 and not train:
+        raise ConfigError("--data-version chooses the rooms and views of --train shards")
+    from codeslam.synth.shards import V2_MAX_DEPTH
+
+    max_depth = V2_MAX_DEPTH if data_version == 2 else RenderConfig.max_depth
+    config = RenderConfig(supersample=supersample, noise_std=noise, blur_sigma=blur, max_depth=max_depth)
     console = Console(stderr=True)
     if train:
         from codeslam.synth.shards import ShardSpec, write_shards
 
         spec = ShardSpec(views=views, camera=camera, seed=seed, views_per_scene=views_per_scene,
-                         shard_size=shard_size, render=config)
+                         shard_size=shard_size, render=config, version=data_version)
         with progress_bar("shards", spec.num_shards, quiet) as update:
             summary = write_shards(spec, out, workers=workers, progress=lambda d, n: update(d))
         console.print(f"{summary['views']} views in {summary['shards']} shards under {out} "

@@ -228,6 +228,8 @@ class _Builder:
         return None
 
     def floor_spot(self, hx: float, hy: float, tries: int = 30, margin: float = 0.4):
+        if 2 * hx >= self.W or 2 * hy >= self.D:  # wider than the room (a corridor)
+            return None
         for _ in range(tries):
             yaw = float(self.rng.uniform(-math.pi, math.pi)) if self.rng.random() < 0.5 else \
                 float(self.rng.integers(0, 4)) * math.pi / 2
@@ -865,11 +867,62 @@ AREA_PER_LIGHT = 16.0
 MAX_LIGHTS = 6
 
 
-def build_scene(seed: int, clutter: float = 1.0, room: RoomSize | None = None) -> Scene:
+def _partitions(b: _Builder, n: int) -> None:
+    """n interior walls across the room, each with a doorway (1-2.5 m wide), full height (separate rooms) or
+    1.2-2 m high (office partitions); their footprints are claimed so that furniture keeps off them."""
+    for _ in range(n):
+        along_x = b.rng.random() < 0.5
+        span, across = (b.W, b.D) if along_x else (b.D, b.W)
+        if across < 4.0 or span < 3.0:
+            continue
+        at = b.rng.uniform(0.35, 0.65) * across
+        t = b.rng.uniform(0.05, 0.08)
+        h = b.H if b.rng.random() < 0.6 else b.rng.uniform(1.2, 2.0)
+        gap = b.rng.uniform(1.0, min(2.5, 0.5 * span))
+        g0 = b.rng.uniform(0.3, span - gap - 0.3)
+        mat = b.paint_mat(_wall_paint(b.rng), amp=0.06)
+        for a0, a1 in ((0.0, g0), (g0 + gap, span)):
+            if a1 - a0 < 0.2:
+                continue
+            c, half = 0.5 * (a0 + a1), 0.5 * (a1 - a0)
+            cx, cy, hx, hy = (c, at, half, t) if along_x else (at, c, t, half)
+            b.add(BOX, (cx, cy, h / 2), (hx, hy, h / 2), 0.0, mat)
+            b.claim(cx, cy, hx + 0.05, hy + 0.05, 0.0)
+
+
+#: The layouts of data version 2 (:func:`build_scene_v2`): name, probability, room size, partitions, clutter.
+V2_LAYOUTS = (
+    ("room", 0.3, RoomSize((3.0, 7.0), (3.0, 7.5), (2.4, 3.2)), 0, 1.0),
+    ("large", 0.25, RoomSize((7.0, 15.0), (5.0, 12.0), (2.6, 4.0)), 0, 0.8),
+    ("open-plan", 0.25, RoomSize((8.0, 15.0), (6.0, 12.0), (2.6, 4.0)), 2, 0.8),
+    ("corridor", 0.2, RoomSize((1.6, 3.0), (6.0, 20.0), (2.4, 3.2)), 0, 0.3),
+)
+
+
+def layout_of_v2(seed: int) -> str:
+    """The layout :func:`build_scene_v2` draws for ``seed``."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x1A70]))
+    p = np.array([w for _, w, *_ in V2_LAYOUTS])
+    return V2_LAYOUTS[int(rng.choice(len(V2_LAYOUTS), p=p / p.sum()))][0]
+
+
+def build_scene_v2(seed: int) -> Scene:
+    """A room of data version 2: a small furnished room (3-7 m), a large room (7-15 m), an open-plan space
+    split by interior walls with doorways into more than one room, or a corridor (1.6-3 m x 6-20 m, few
+    objects, doors along its walls); ceilings 2.4-4 m. See :data:`V2_LAYOUTS`."""
+    name = layout_of_v2(seed)
+    _, _, size, partitions, clutter = next(x for x in V2_LAYOUTS if x[0] == name)
+    return build_scene(seed, clutter=clutter, room=size, partitions=partitions, wall_items_per_m=0.35)
+
+
+def build_scene(seed: int, clutter: float = 1.0, room: RoomSize | None = None, partitions: int = 0,
+                wall_items_per_m: float = 0.0) -> Scene:
     """Draw a room from ``seed``. ``clutter`` scales the number of furniture and clutter items; ``room``
     (default :data:`DEFAULT_ROOM`) gives the ranges of its size. Rooms of another size get ceiling lights
     spread over the whole floor (one per AREA_PER_LIGHT m²) instead of 1-3 near the middle; a seed built
-    without ``room`` is the same scene as before sizes could be chosen."""
+    without ``room`` is the same scene as before sizes could be chosen. ``partitions``: up to that many
+    interior walls with doorways (1 or 2 with probability 1/2 each); ``wall_items_per_m``: further doors,
+    windows, pictures and boards per metre of wall (large rooms and corridors need more than the default)."""
     b = _Builder(seed)
     rng = b.rng
     size = room or DEFAULT_ROOM
@@ -878,7 +931,9 @@ def build_scene(seed: int, clutter: float = 1.0, room: RoomSize | None = None) -
     _baseboards(b)
     pos, rgb, amb = _lights(b) if room is None or room == DEFAULT_ROOM else _spread_lights(b)
     area = b.W * b.D
-    if rng.random() < 0.55:
+    if partitions > 0:
+        _partitions(b, int(rng.integers(1, partitions + 1)))
+    if rng.random() < 0.55 and min(b.W, b.D) > 2.2:  # (no rug in a corridor)
         _rug(b)
     _wall_items(b, int(rng.integers(1, 3)))  # a first few wall items (doors claim floor space)
     makers = [(_shelf, 1.2), (_cabinet, 1.0), (_desk, 1.2), (_bed, 0.35), (_sofa, 0.5), (_floor_lamp, 0.4)]
@@ -894,6 +949,8 @@ def build_scene(seed: int, clutter: float = 1.0, room: RoomSize | None = None) -
     for _ in range(int(clutter * rng.integers(1, 5))):
         _floor_clutter(b)
     _wall_items(b, int(clutter * rng.integers(2, 7)))
+    if wall_items_per_m > 0:
+        _wall_items(b, int(round(wall_items_per_m * 2 * (b.W + b.D))))
     _clutter_on_surfaces(b, clutter * rng.uniform(0.6, 1.4))
 
     def prims(rows: list) -> Prims:

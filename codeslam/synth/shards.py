@@ -31,10 +31,17 @@ from codeslam.errors import CodeSLAMError, DatasetError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.io import atomic_path, ensure_dir
 from codeslam.synth.render import RenderConfig, depth_to_uint16, render, to_uint8
-from codeslam.synth.scene import build_scene
-from codeslam.synth.trajectory import random_views
+from codeslam.synth.scene import build_scene, build_scene_v2
+from codeslam.synth.trajectory import random_views, random_views_v2
 
 SHARD_FORMAT = "codeslam-shard-v1"
+#: Data versions: how rooms are built and views drawn. 1: furnished rooms of 3-7 m seen mostly from close by
+#: (the data of the first default weights); 2: also large rooms, open-plan spaces split into rooms, corridors,
+#: ceilings to 4 m, and half the views looking along the room from standing or sitting height
+#: (:func:`codeslam.synth.scene.build_scene_v2`, :func:`codeslam.synth.trajectory.random_views_v2`).
+DATA_VERSIONS = {1: (build_scene, random_views), 2: (build_scene_v2, random_views_v2)}
+#: Depth range (metres) for data version 2, whose rooms reach 20 m: the 16-bit depth's limit at 1/5000 m.
+V2_MAX_DEPTH = 13.0
 DEPTH_FACTOR = 5000.0
 #: Views rendered in one call (bounds memory; results do not depend on it).
 RENDER_BATCH = 8
@@ -51,6 +58,7 @@ class ShardSpec:
         views_per_scene: views rendered per random room.
         shard_size: views per shard (the last shard may hold fewer).
         render: shading and sensor settings.
+        version: data version (:data:`DATA_VERSIONS`); 1 is what every shard was before versions existed.
     """
 
     views: int
@@ -59,8 +67,12 @@ class ShardSpec:
     views_per_scene: int = 16
     shard_size: int = 256
     render: RenderConfig = field(default_factory=RenderConfig)
+    version: int = 1
 
     def __post_init__(self) -> None:
+        if self.version not in DATA_VERSIONS:
+            raise CodeSLAMError(f"--data-version must be one of {', '.join(map(str, DATA_VERSIONS))}, "
+                                f"got {self.version}")
         if self.views < 1:
             raise CodeSLAMError(f"--views must be at least 1, got {self.views}")
         if self.views_per_scene < 1:
@@ -91,12 +103,13 @@ def render_shard(spec: ShardSpec, index: int) -> dict[str, torch.Tensor]:
     m = spec.shard_views(index)
     images, depths, poses = [], [], []
     scene_i = done = 0
+    make_scene, make_views = DATA_VERSIONS[spec.version]
     while done < m:
         k = min(spec.views_per_scene, m - done)
         s_seed = _scene_seed(spec.seed, index, scene_i)
-        scene = build_scene(s_seed)
+        scene = make_scene(s_seed)
         rng = np.random.default_rng(np.random.SeedSequence([s_seed, 0x71E3]))
-        T = random_views(scene, k, rng)
+        T = make_views(scene, k, rng)
         for a in range(0, k, RENDER_BATCH):
             img, dep = render(scene, spec.camera, T[a:a + RENDER_BATCH], spec.render,
                               noise_seed=s_seed + a)
@@ -118,7 +131,7 @@ def _metadata(spec: ShardSpec, index: int) -> dict[str, str]:
         "views": str(spec.shard_views(index)),
         "views_per_scene": str(spec.views_per_scene),
         "render": json.dumps(asdict(spec.render), sort_keys=True),
-    }
+    } | ({} if spec.version == 1 else {"data_version": str(spec.version)})
 
 
 def write_shard(spec: ShardSpec, out_dir: str | Path, index: int) -> Path:

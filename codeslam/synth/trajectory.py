@@ -140,6 +140,49 @@ def random_views(scene: Scene, n: int, rng: np.random.Generator, clearance: floa
     return torch.stack(poses)
 
 
+#: Data version 2 views: share looking along the room from standing or sitting height (the rest are the
+#: version 1 views of furniture, walls and the floor), standing and sitting camera heights (metres), the share
+#: of sitting, the nearest look-at distance (metres) and the pitch range (radians) of the along-room views.
+ALONG_ROOM_SHARE = 0.55
+STANDING_HEIGHT = (1.4, 1.8)
+SITTING_HEIGHT = (1.0, 1.3)
+SITTING_SHARE = 0.35
+ALONG_MIN_DISTANCE = 2.5
+ALONG_PITCH = (math.radians(-30.0), math.radians(15.0))
+
+
+def random_views_v2(scene: Scene, n: int, rng: np.random.Generator, clearance: float = 0.25) -> torch.Tensor:
+    """n camera poses (n, 4, 4) float64 ``T_wc`` of data version 2: ALONG_ROOM_SHARE of them as a person sees a
+    room, from standing (1.4-1.8 m) or sitting (1.0-1.3 m) height looking along it at a point at least
+    2.5 m away (pitch -30 to +15 deg, a little roll), the rest :func:`random_views`' close-ups of furniture,
+    walls and the floor. The order of the two kinds is shuffled."""
+    W, D, H = scene.size
+    n_along = int(rng.binomial(n, ALONG_ROOM_SHARE))
+    poses = []
+    while len(poses) < n_along:
+        m = 4 * (n_along - len(poses)) + 16
+        sit = rng.random(m) < SITTING_SHARE
+        z = np.where(sit, rng.uniform(*SITTING_HEIGHT, m), rng.uniform(*STANDING_HEIGHT, m))
+        z = np.minimum(z, H - clearance - 0.05)
+        pos = np.stack([rng.uniform(clearance, W - clearance, m), rng.uniform(clearance, D - clearance, m), z], -1)
+        target = np.stack([rng.uniform(0.0, W, m), rng.uniform(0.0, D, m), rng.uniform(0.3, min(2.2, H), m)], -1)
+        v = target - pos
+        flat = np.linalg.norm(v[:, :2], axis=-1)
+        pitch = np.clip(np.arctan2(v[:, 2], np.maximum(flat, 1e-6)) + rng.normal(0.0, math.radians(5.0), m),
+                        *ALONG_PITCH)
+        yaw = np.arctan2(v[:, 1], v[:, 0])
+        ok = _free(scene, pos, clearance) & (flat >= ALONG_MIN_DISTANCE)
+        for i in np.nonzero(ok)[0]:
+            if len(poses) == n_along:
+                break
+            roll = float(np.clip(rng.normal(0.0, math.radians(3.0)), -0.2, 0.2))
+            look = _direction(np.array(yaw[i]), np.array(pitch[i]))
+            poses.append(look_at(torch.from_numpy(pos[i]), torch.from_numpy(pos[i] + look), roll))
+    out = poses + ([] if n == n_along else list(random_views(scene, n - n_along, rng, clearance=0.15)))
+    order = rng.permutation(n)
+    return torch.stack([out[i] for i in order])
+
+
 # ------------------------------------------------------------------------------------------- trajectories
 def _catmull_rom(keys: np.ndarray, s: np.ndarray) -> np.ndarray:
     """Uniform Catmull-Rom spline through keys (K, C) at parameters s (N,) in [0, K - 1]. Returns (N, C)."""

@@ -71,3 +71,32 @@ def test_default_rooms_keep_their_seeds_and_sized_rooms_follow_their_ranges():
         # lights spread over the room, not bunched in its middle
         assert float(s.light_pos[:, 0].max() - s.light_pos[:, 0].min()) > 0.4 * W
         assert s.num_primitives > 100  # furniture scales with the floor area
+
+
+def test_version_2_layouts_cover_large_rooms_open_plan_and_corridors():
+    from collections import Counter
+
+    from codeslam.synth.primitives import BOX
+    from codeslam.synth.scene import build_scene_v2, layout_of_v2
+
+    seen = Counter()
+    for seed in range(40):
+        name = layout_of_v2(seed)
+        seen[name] += 1
+        if seen[name] > 2:  # building is cheap, but two of each kind are enough
+            continue
+        s = build_scene_v2(seed)
+        W, D, H = s.size
+        assert 2.4 <= H <= 4.0
+        if name == "corridor":
+            assert 1.6 <= W <= 3.0 and 6.0 <= D <= 20.0
+        elif name in ("large", "open-plan"):
+            assert max(W, D) >= 7.0
+        if name == "open-plan":
+            boxes = s.prims[BOX]
+            long_wall = (boxes.half[:, :2].amax(-1) > 1.0) & (boxes.half[:, :2].amin(-1) < 0.1) \
+                & (boxes.half[:, 2] > 0.55)
+            inside = (boxes.center[:, 0] > 1.0) & (boxes.center[:, 0] < W - 1.0) & (boxes.center[:, 1] > 1.0) \
+                & (boxes.center[:, 1] < D - 1.0)
+            assert bool((long_wall & inside).any())  # an interior wall
+    assert set(seen) == {"room", "large", "open-plan", "corridor"}

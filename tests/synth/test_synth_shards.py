@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from codeslam.errors import DatasetError
+from codeslam.errors import CodeSLAMError, DatasetError
 from codeslam.geometry.camera import canonical_camera
 from codeslam.synth.render import RenderConfig, render
 from codeslam.synth.scene import build_scene
@@ -92,3 +92,25 @@ def test_read_shard_rejects_bad_files(tmp_path: Path):
     save_file({"image": torch.zeros(1, 3, 4, 4, dtype=torch.uint8)}, str(other), metadata={"format": "x"})
     with pytest.raises(DatasetError):
         read_shard(other)
+
+
+def test_version_2_shards_are_marked_and_see_farther(tmp_path):
+    from safetensors import safe_open
+
+    from codeslam.synth.shards import V2_MAX_DEPTH
+
+    cam = canonical_camera(32, 24)
+    depths = {}
+    for version in (1, 2):
+        render = RenderConfig(max_depth=V2_MAX_DEPTH if version == 2 else 10.0)
+        spec = ShardSpec(views=32, camera=cam, seed=5, views_per_scene=8, shard_size=32, render=render,
+                         version=version)
+        write_shards(spec, tmp_path / f"v{version}")
+        _, depth, _ = read_shard(tmp_path / f"v{version}" / "shard_00000.safetensors")
+        depths[version] = float(depth[depth > 0].median())
+        with safe_open(str(tmp_path / f"v{version}" / "shard_00000.safetensors"), "pt") as f:
+            meta = f.metadata()
+        assert ("data_version" in meta) == (version == 2)  # version 1 shards keep their old metadata
+    assert depths[2] > 1.3 * depths[1]  # larger rooms seen along their length
+    with pytest.raises(CodeSLAMError, match="data-version"):
+        ShardSpec(views=1, camera=cam, version=3)

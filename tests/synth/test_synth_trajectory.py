@@ -71,3 +71,19 @@ def test_trajectories_are_reproducible():
     b = random_trajectory(scene, 50, np.random.default_rng(5))
     c = random_trajectory(scene, 50, np.random.default_rng(6))
     assert torch.equal(a, b) and not torch.equal(a, c)
+
+
+def test_version_2_views_look_along_the_room_from_standing_and_sitting_height():
+    from codeslam.synth.scene import build_scene_v2
+    from codeslam.synth.trajectory import random_views_v2
+
+    scene = build_scene_v2(1)  # a large room
+    T = random_views_v2(scene, 60, np.random.default_rng(3))
+    assert T.shape == (60, 4, 4)
+    pos = T[:, :3, 3].float()
+    assert float(scene.free_distance(pos).min()) >= 0.15 - 1e-6
+    pitch = torch.asin(T[:, 2, 2])
+    level = (pitch.abs() < math.radians(31.0)) & (pos[:, 2] >= 0.99) & (pos[:, 2] <= 1.81)
+    assert 0.4 < float(level.float().mean()) < 0.95  # about half look along the room, the rest are close-ups
+    again = random_views_v2(scene, 60, np.random.default_rng(3))
+    assert torch.equal(T, again)
