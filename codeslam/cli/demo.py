@@ -31,17 +31,25 @@ def demo_command(
     Writes the sequence to data/ and the SLAM outputs to slam/ under --out (default codeslam_demo)."""
     from rich.console import Console
 
-    from codeslam.cli.slam import slam_command
-    from codeslam.cli.synth import synth_command
     from codeslam.io import check_output_dir
 
     console = Console(stderr=True)
     check_output_dir(out)
     data = out / "data"
     console.print(f"[bold]1/2[/bold] rendering a synthetic room ({frames} frames, seed {seed}) into {data}")
-    synth_command(out=data, scenes=1, frames=frames, seed=seed, size="128x96", train=False, views=0,
-                  views_per_scene=1, shard_size=1, workers=1, supersample=2, noise=0.0, blur=0.0, json_out=None)
+    _run_command(["synth", str(data), "--scenes", "1", "--frames", str(frames), "--seed", str(seed), "--size",
+                  "128x96", "--supersample", "2", *(["--quiet"] if quiet else [])])
     console.print(f"[bold]2/2[/bold] running CodeSLAM on {data / 'scene_000'} (results in {out / 'slam'})")
-    slam_command(dataset=data / "scene_000", out=out / "slam", fmt=None, frames=None, weights=weights,
-                 config=None, json_out=None, viewer="none", device=device, depth_model="network", threads=threads,
-                 size="128x96", quiet=quiet)
+    _run_command(["slam", str(data / "scene_000"), "--out", str(out / "slam"),
+                  *(["--weights", str(weights)] if weights is not None else []),
+                  *(["--device", device] if device is not None else []),
+                  *(["--threads", str(threads)] if threads is not None else []), *(["--quiet"] if quiet else [])])
+
+
+def _run_command(args: list[str]) -> None:
+    """Run one ``codeslam`` command as its command line would, every option not given at its default (calling the
+    command functions directly would pass typer's option objects for any option added later). Errors propagate
+    to the entry point, which prints them as one line."""
+    from typer.main import get_command
+
+    get_command(app).main(args=args, prog_name="codeslam", standalone_mode=False)
