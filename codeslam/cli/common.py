@@ -24,9 +24,10 @@ FRAMES_HELP = ("Frames: START:END[:STEP] (END excluded, either bound may be empt
                "or one index; parts may be mixed (0:10,20).")
 
 DatasetArg = Annotated[Path, typer.Argument(
-    help="Dataset folder (TUM, EuRoC, SceneNet, TartanAir or image folder; `codeslam info` shows what it holds).")]
+    help="Dataset folder (TUM, EuRoC, SceneNet, TartanAir or image folder) or video file (.mp4, .mov, ...); "
+    "`codeslam info` shows what it holds.")]
 Format = Annotated[str | None, typer.Option(
-    "--format", "-f", help="Dataset format (tum, euroc, scenenet, tartanair, folder); detected when omitted.")]
+    "--format", "-f", help="Dataset format (tum, euroc, scenenet, tartanair, folder, video); detected when omitted.")]
 Weights = Annotated[Path | None, typer.Option(
     "--weights", help="Network weights (safetensors); the shipped weights when omitted.")]
 Frames = Annotated[str | None, typer.Option("--frames", help=FRAMES_HELP)]
@@ -131,13 +132,14 @@ def reader_warnings() -> Iterator[None]:
 
 
 def open_frames(dataset: Path, fmt: str | None, frames: str | None, min_frames: int = 1,
-                what: str = "this command", increasing: bool = False):
-    """Open a dataset folder (format detected when ``fmt`` is None; reader warnings as one line each) and parse
-    ``frames`` against its length (:func:`parse_frames`) -> (sequence, frame indices)."""
+                what: str = "this command", increasing: bool = False, options: dict | None = None):
+    """Open a dataset folder or video (format detected when ``fmt`` is None; ``options`` go to the reader; reader
+    warnings as one line each) and parse ``frames`` against its length (:func:`parse_frames`) -> (sequence, frame
+    indices)."""
     from codeslam.data.registry import open_dataset
 
     with reader_warnings():
-        seq = open_dataset(dataset, format=fmt)
+        seq = open_dataset(dataset, format=fmt, **(options or {}))
     if len(seq) == 0:
         raise DatasetError(f"{dataset} holds no frames")
     return seq, parse_frames(frames, len(seq), min_frames, what, increasing)

@@ -4,7 +4,9 @@ and (with ground truth) its evaluation. A thin shell over :func:`codeslam.slam.p
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -13,6 +15,112 @@ from codeslam.cli.common import DatasetArg, Device, Format, Frames, JsonOut, Out
 from codeslam.errors import ConfigError
 
 DEPTH_MODELS = ("network", "standin")
+
+# Options of a video input (a dataset folder carries its own camera and is subsampled with --frames).
+VideoCamera = Annotated[Path | None, typer.Option(
+    "--camera", help="Video: calibration file (camera.yaml: fx, fy, cx, cy, optional width, height, dist); without "
+    "it the intrinsics are guessed from --fov.")]
+VideoFov = Annotated[float | None, typer.Option(
+    "--fov", help="Video without --camera: horizontal field of view in degrees to guess the intrinsics from "
+    "(default 60, stated in the summary and report).")]
+VideoFps = Annotated[float | None, typer.Option("--fps", help="Video: keep at most this many frames per second.")]
+VideoEvery = Annotated[int | None, typer.Option("--every", help="Video: keep every N-th frame (after --fps).")]
+
+
+@dataclass
+class SlamSetup:
+    """What every run of a ``slam`` or ``evaluate`` invocation shares: the configuration, the depth model (loaded
+    once) and the camera the system runs in."""
+
+    cfg: object  # SLAMConfig
+    factory: object  # DepthModelFactory
+    camera: object  # PinholeCamera
+    depth_model: str
+    model_info: dict
+
+
+def setup_slam(config: Path | None, weights: Path | None, device: str | None, depth_model: str,
+               size: str) -> SlamSetup:
+    """Check the options and load the configuration and the depth model (ConfigError / WeightsError, one line)."""
+    import dataclasses
+
+    from codeslam.cli.common import check_device
+    from codeslam.geometry.camera import canonical_camera
+    from codeslam.slam.config import load_config
+
+    if depth_model not in DEPTH_MODELS:
+        raise ConfigError(f"--depth-model must be one of {', '.join(DEPTH_MODELS)}, got {depth_model!r}")
+    if weights is not None and depth_model != "network":
+        raise ConfigError("--weights applies to --depth-model network only")
+    cfg = load_config(config)
+    cfg = dataclasses.replace(cfg, device=check_device(device, cfg.device))
+    if depth_model == "network":
+        from codeslam.depthmodel import DepthModel
+        from codeslam.slam.depth import network_depth_model
+
+        model = DepthModel.load(weights, device=cfg.device)
+        return SlamSetup(cfg, network_depth_model(model), model.camera, depth_model,
+                         {"depth_model": "network", "weights": str(weights) if weights else "default"})
+    from codeslam.slam.depth import standin_depth_model
+
+    return SlamSetup(cfg, standin_depth_model(num_levels=cfg.decoder_levels), canonical_camera(*parse_size(size)),
+                     depth_model, {"depth_model": "standin (oracle from the dataset's depth)"})
+
+
+def video_options(dataset: Path, fmt: str | None, camera: Path | None, fov: float | None, fps: float | None,
+                  every: int | None) -> dict:
+    """The video reader's options for ``dataset`` ({} for a dataset folder); ConfigError when one is given for a
+    dataset that is not a video."""
+    from codeslam.data.video import is_video_file
+
+    given = {k: v for k, v in (("camera", camera), ("fov", fov), ("fps", fps), ("every", every)) if v is not None}
+    is_video = fmt == "video" or (fmt is None and Path(dataset).is_file() and is_video_file(dataset))
+    if given and not is_video:
+        flags = ", ".join(f"--{k}" for k in given)
+        raise ConfigError(f"{flags} apply to a video file only; {dataset} is not one (a dataset folder carries its "
+                          "own camera; --frames START:END:STEP subsamples it)")
+    return given
+
+
+def run_to_folder(seq, indices: list[int], dataset: Path, out: Path, setup: SlamSetup, viewer: str = "none",
+                  quiet: bool = False, label: str = "slam") -> dict:
+    """Run SLAM on ``indices`` of ``seq`` and write the run folder ``out``: the runner's files, with ground truth
+    the evaluation, its plot and the ground truth of the processed frames, then ``report.html``. Returns the
+    summary (as in result.json)."""
+    from codeslam.cli.common import progress_bar
+    from codeslam.eval.slam_run import evaluate_run_if_possible, plot_run
+    from codeslam.report import write_groundtruth, write_report
+    from codeslam.report.run import REPORT_FILE
+    from codeslam.slam.pipeline import ground_truth, run_slam, summarise, write_outputs
+    from codeslam.slam.system import CodeSLAM
+    from codeslam.viz import make_visualizer
+
+    if setup.depth_model == "standin" and not seq.has_depth:
+        raise ConfigError(f"--depth-model standin needs a dataset with depth maps; {dataset} has none")
+    keyframes = 0
+    with progress_bar(label, len(indices), quiet) as update:
+        def progress(done: int, total: int, result) -> None:
+            nonlocal keyframes
+            keyframes += int(result.is_keyframe)
+            update(done, f"{result.status}, {keyframes} keyframes")
+
+        run = run_slam(seq, CodeSLAM(setup.cfg, setup.factory), setup.camera, indices, make_visualizer(viewer),
+                       progress)
+    gt = ground_truth(seq, indices)
+    evaluation = evaluate_run_if_possible(run.trajectory, gt)
+    source = seq.describe() if hasattr(seq, "describe") else {}  # a video: its rate and how the camera was found
+    summary = summarise(run, evaluation, dataset=str(dataset), format=seq.format_name, device=setup.cfg.device,
+                        **setup.model_info, **source)
+    written = {}
+    if "ate_se3_rmse" in evaluation:
+        written["trajectory.png"] = str(out / "trajectory.png")
+        plot_run(written["trajectory.png"], run.trajectory, gt, len(run.keyframes))
+    if write_groundtruth(out, gt) is not None:  # for the report, rebuilt from the folder alone
+        written["groundtruth.txt"] = str(out / "groundtruth.txt")
+    written[REPORT_FILE] = str(out / REPORT_FILE)
+    summary["outputs"] = write_outputs(out, run, setup.cfg, summary, written)
+    write_report(out)  # reads result.json, so after it
+    return summary
 
 
 @app.command("slam")
@@ -32,74 +140,32 @@ def slam_command(
     threads: Threads = None,
     size: str = typer.Option("128x96", "--size", help="--depth-model standin: the camera's WIDTHxHEIGHT (the "
                              "network uses its own canonical camera)."),
+    camera: VideoCamera = None,
+    fov: VideoFov = None,
+    fps: VideoFps = None,
+    every: VideoEvery = None,
     quiet: Quiet = False,
 ) -> None:
     """Dense monocular SLAM (paper Sec. 4): track, select keyframes, optimise a sliding window of depth codes and
-    poses, marginalise old keyframes. Runs on every frame unless --frames selects some (at least 2, increasing).
-    Writes trajectory.txt, keyframes.txt/.npz, map.ply, config.yaml and result.json under --out (default
-    slam_out), and with ground truth prints the metrics and plots trajectory.png."""
-    import dataclasses
-
-    from codeslam.cli.common import check_device, open_frames, progress_bar, set_threads
-    from codeslam.eval.slam_run import evaluate_run_if_possible, plot_run
-    from codeslam.geometry.camera import canonical_camera
+    poses, marginalise old keyframes. DATASET is a dataset folder or a video file (a phone's MP4: --camera
+    camera.yaml, or a --fov guess). Runs on every frame unless --frames selects some (at least 2, increasing).
+    Writes trajectory.txt, keyframes.txt/.npz, map.ply, config.yaml, result.json and report.html (open it in a
+    browser) under --out (default slam_out); with ground truth prints the metrics and plots trajectory.png."""
+    from codeslam.cli.common import open_frames, set_threads
     from codeslam.io import check_outputs, write_json
-    from codeslam.slam.config import load_config
-    from codeslam.slam.pipeline import ground_truth, run_slam, summarise, write_outputs
-    from codeslam.slam.system import CodeSLAM
-    from codeslam.viz import VIEWERS, make_visualizer
+    from codeslam.viz import VIEWERS
 
-    if depth_model not in DEPTH_MODELS:
-        raise ConfigError(f"--depth-model must be one of {', '.join(DEPTH_MODELS)}, got {depth_model!r}")
     if viewer not in VIEWERS:
         raise ConfigError(f"--viewer must be one of {', '.join(VIEWERS)}, got {viewer!r}")
-    if weights is not None and depth_model != "network":
-        raise ConfigError("--weights applies to --depth-model network only")
     set_threads(threads)
     check_outputs(out, json_out)  # refuse bad output paths before any work
-    cfg = load_config(config)
-    cfg = dataclasses.replace(cfg, device=check_device(device, cfg.device))
-    seq, indices = open_frames(dataset, fmt, frames, min_frames=2, what="SLAM", increasing=True)
-
-    if depth_model == "network":
-        from codeslam.depthmodel import DepthModel
-        from codeslam.slam.depth import network_depth_model
-
-        model = DepthModel.load(weights, device=cfg.device)
-        factory, camera = network_depth_model(model), model.camera
-        model_info = {"depth_model": "network", "weights": str(weights) if weights else "default"}
-    else:
-        from codeslam.slam.depth import standin_depth_model
-
-        if not seq.has_depth:
-            raise ConfigError("--depth-model standin needs a dataset with depth maps; this one has none")
-        camera = canonical_camera(*parse_size(size))
-        factory = standin_depth_model(num_levels=cfg.decoder_levels)
-        model_info = {"depth_model": "standin (oracle from the dataset's depth)"}
-    visualizer = make_visualizer(viewer)
-
-    keyframes = 0
-    with progress_bar("slam", len(indices), quiet) as update:
-        def progress(done: int, total: int, result) -> None:
-            nonlocal keyframes
-            keyframes += int(result.is_keyframe)
-            update(done, f"{result.status}, {keyframes} keyframes")
-
-        run = run_slam(seq, CodeSLAM(cfg, factory), camera, indices, visualizer, progress)
-    gt = ground_truth(seq, indices)
-    evaluation = evaluate_run_if_possible(run.trajectory, gt)
-    summary = summarise(run, evaluation, dataset=str(dataset), format=seq.format_name, device=cfg.device,
-                        **model_info)
-    written = {}
-    if "ate_se3_rmse" in evaluation:
-        written["trajectory.png"] = str(out / "trajectory.png")
-        plot_run(written["trajectory.png"], run.trajectory, gt, len(run.keyframes))
-    summary["outputs"] = write_outputs(out, run, cfg, summary, written)
+    options = video_options(dataset, fmt, camera, fov, fps, every)
+    setup = setup_slam(config, weights, device, depth_model, size)
+    seq, indices = open_frames(dataset, fmt, frames, min_frames=2, what="SLAM", increasing=True, options=options)
+    summary = run_to_folder(seq, indices, dataset, out, setup, viewer, quiet)
     _print_summary(summary, out)
     if json_out is not None:
         write_json(json_out, summary)
-
-
 
 
 def _print_summary(s: dict, out: Path) -> None:
@@ -117,6 +183,8 @@ def _print_summary(s: dict, out: Path) -> None:
         ("speed", f"{s['fps']:.2f} frames/s ({s['fps_with_io']:.2f} with reading)"),
         ("depth model", str(s.get("depth_model", ""))),
     ]
+    if "camera" in s:  # a video: the calibration file, or the field-of-view guess
+        rows.append(("camera", str(s["camera"])))
     if "ate_se3_rmse" in s:
         rows += [
             ("ATE SE(3)", f"{s['ate_se3_rmse']:.4f} m"),
@@ -128,6 +196,8 @@ def _print_summary(s: dict, out: Path) -> None:
         ]
     elif "evaluation_error" in s:
         rows.append(("evaluation", s["evaluation_error"]))
+    if "report.html" in s.get("outputs", {}):
+        rows.append(("report", s["outputs"]["report.html"]))
     for k, v in rows:
         table.add_row(escape(k), escape(v))
     Console().print(table)

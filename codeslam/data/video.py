@@ -20,6 +20,7 @@ sees the exposure changes; see the README's notes on phone videos).
 from __future__ import annotations
 
 import math
+import warnings
 from fractions import Fraction
 from pathlib import Path
 
@@ -121,6 +122,10 @@ class VideoSequence(Sequence):
                 raise ConfigError(f"{cam_file}: {e}") from None
             self.camera_source = f"calibration {cam_file}"
         else:
+            if fov is None:
+                warnings.warn(f"{path.name}: no calibration file, so the camera is guessed from a {DEFAULT_FOV_DEG:g} "
+                              "deg horizontal field of view (give one with --camera camera.yaml, or --fov)",
+                              stacklevel=2)
             fov = DEFAULT_FOV_DEG if fov is None else check_fov(fov)
             src = canonical_camera(w, h, hfov_deg=fov)
             self.camera_source = (f"guessed: {fov:g} deg horizontal field of view, principal point at the centre "
@@ -208,6 +213,40 @@ class VideoSequence(Sequence):
             self.close()
         except Exception:  # interpreter shutdown
             pass
+
+
+def write_video(path: str | Path, images, fps: float = 30.0, codec: str | None = None, rotation: int = 0) -> Path:
+    """Encode ``images`` ((H, W, 3) uint8 RGB arrays, or (3, H, W) float tensors in [0, 1]) as a video file, atomically
+    (e.g. a generator sequence, to try the video path). ``codec``: H.264 (libx264) when PyAV's FFmpeg has it, else
+    MPEG-4 part 2; ``rotation``: a display rotation (degrees counter-clockwise) stored with the stream, as a phone
+    does. Even frame sizes are needed by the 4:2:0 chroma of both codecs."""
+    import av
+
+    from codeslam.io import atomic_path
+
+    path = Path(path)
+    frames = [np.ascontiguousarray((img.clamp(0, 1) * 255 + 0.5).byte().permute(1, 2, 0).numpy())
+              if isinstance(img, torch.Tensor) else np.ascontiguousarray(img, dtype=np.uint8) for img in images]
+    if not frames:
+        raise ValueError("write_video needs at least one image")
+    h, w = frames[0].shape[:2]
+    codec = codec or ("libx264" if "libx264" in av.codecs_available else "mpeg4")
+    with atomic_path(path) as tmp:
+        with av.open(str(tmp), "w", format=None if path.suffix else "mp4") as container:
+            stream = container.add_stream(codec, rate=Fraction(fps).limit_denominator(1001))
+            stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
+            if codec == "libx264":
+                stream.options = {"crf": "18"}  # near-lossless: the test compares frames
+            else:
+                stream.bit_rate = 4_000_000
+            if rotation:
+                stream.set_display_rotation(rotation)
+            for img in frames:
+                for packet in stream.encode(av.VideoFrame.from_ndarray(img, format="rgb24")):
+                    container.mux(packet)
+            for packet in stream.encode():
+                container.mux(packet)
+    return path
 
 
 def _to_tensor(frame, rotation: int) -> torch.Tensor:
