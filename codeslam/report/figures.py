@@ -260,6 +260,7 @@ def keyframe_figure(kf: dict[str, np.ndarray]):
     if missing:
         title += f"<br><sup>not available in this run: {', '.join(missing)}</sup>"
     _layout(fig, title, int(140 + len(sel) * (1100 / max(ncol, 4)) * h / w * 1.2))
+    fig.update_layout(margin=dict(t=110 if missing else 80))  # room for the subtitle above the panel titles
     fig.update_annotations(font_size=11)
     return fig
 
@@ -327,7 +328,7 @@ def map_figure(cloud: PointCloud | None, est: Trajectory, keyframes: dict[str, n
                                    line=dict(color=KEYFRAME_COLOUR, width=3), hoverinfo="skip"))
     forward = axes @ poses[0, :3, 2]  # the first camera's viewing direction in the display frame
     horiz = forward[:2] / max(np.linalg.norm(forward[:2]), 1e-9)
-    eye = dict(x=-1.1 * horiz[0], y=-1.1 * horiz[1], z=0.8)  # behind and above the first camera
+    eye = dict(x=-1.6 * horiz[0], y=-1.6 * horiz[1], z=1.0)  # behind and above the first camera
     fig.update_layout(scene=dict(aspectmode="data", xaxis_title="horizontal 1 [m]", yaxis_title="horizontal 2 [m]",
                                  zaxis_title="up [m]", camera=dict(eye=eye)), uirevision="map")
     _layout(fig, "Map and camera path (drag to rotate, scroll to zoom)", 640)
