@@ -23,6 +23,7 @@ from codeslam.cli import sfm as _sfm  # noqa: E402,F401  isort: skip
 from codeslam.cli import slam as _slam  # noqa: E402,F401  isort: skip
 from codeslam.cli import demo as _demo  # noqa: E402,F401  isort: skip
 from codeslam.cli import report as _report  # noqa: E402,F401  isort: skip
+from codeslam.cli import evaluate_many as _evaluate_many  # noqa: E402,F401  isort: skip
 
 
 def main(argv: list[str] | None = None) -> int:
