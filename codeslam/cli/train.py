@@ -35,7 +35,8 @@ def _check_resumable(saved, requested) -> None:
 @app.command("train")
 def train_command(
     data: list[Path] = typer.Option(..., "--data", help="Shard folder(s) (shard_*.safetensors) or RGB-D dataset "
-                                    "folder(s): --data DIR [DIR ...] (or repeat --data)."),
+                                    "folder(s): --data DIR [DIR ...] (or repeat --data); DIR:W repeats a source's "
+                                    "frames W times per epoch (e.g. a small real set among many rendered views)."),
     more_data: list[Path] | None = typer.Argument(None, hidden=True, help="Further --data folders."),
     out: Path = typer.Option(..., "--out", help="Run folder: config.yaml, log.csv, val.csv, checkpoint, weights."),
     config: Path | None = typer.Option(None, "--config", help="YAML with 'network:' and/or 'train:' sections."),
@@ -47,6 +48,8 @@ def train_command(
     size: str | None = typer.Option(None, "--size", help="Canonical image size WIDTHxHEIGHT, multiples of 16."),
     workers: int | None = typer.Option(None, "--workers", help="Threads that load and resample dataset frames."),
     seed: int | None = typer.Option(None, "--seed", help="Seed of weights, data order and augmentation."),
+    init: str | None = typer.Option(None, "--init", help="Fine-tune: start from this weights file ('default': the "
+                                    "shipped weights) instead of random weights."),
     device: Device = None,
     stop_after: int | None = typer.Option(None, "--stop-after", help="Stop (with a checkpoint) after this many "
                                           "steps as if interrupted; --resume continues it."),
@@ -71,7 +74,7 @@ def train_command(
     if size is not None:
         net_opts["width"], net_opts["height"] = parse_size(size, limits=None)  # NetworkConfig checks them
     train_opts = {k: v for k, v in dict(steps=steps, batch_size=batch_size, workers=workers, seed=seed,
-                                         device=device).items() if v is not None}
+                                         device=device, init_weights=init).items() if v is not None}
 
     if resume and (out / "checkpoint.safetensors").is_file():
         # the checkpoint's configuration, with the given file / options applied on top: they may repeat the

@@ -153,6 +153,19 @@ class TrainConfig:
     gamma: float = 0.2
     # Standard deviation of additive Gaussian pixel noise (intensity units).
     noise_std: float = 0.01
+    # Image formation of real cameras applied to every training image (codeslam.network.camera_effects; all 0 =
+    # off, as for the first default weights). exposure: log-gain range; vignetting: largest corner darkening;
+    # sensor_noise: shot/read noise level; motion_blur: longest blur (pixels); rolling_shutter: largest row shear
+    # (pixels, top to bottom); distortion: largest |k1| of a lens that is undistorted again.
+    exposure: float = 0.0
+    vignetting: float = 0.0
+    sensor_noise: float = 0.0
+    motion_blur: float = 0.0
+    rolling_shutter: float = 0.0
+    distortion: float = 0.0
+    # Weights file to start from (fine-tuning) instead of random weights; "" = random, "default" = the shipped
+    # weights. Its architecture must be the network config's.
+    init_weights: str = ""
     # Threads that load and resample dataset frames in parallel (training itself runs in the main thread).
     workers: int = 2
     # Device of the model and the in-memory data: "cpu", "cuda" or "cuda:N" (under torchrun: the local rank).
@@ -173,9 +186,16 @@ class TrainConfig:
             raise ConfigError(f"train.val_fraction must lie in [0, 1), got {self.val_fraction}")
         if not 0 <= self.flip_prob <= 1:
             raise ConfigError(f"train.flip_prob must lie in [0, 1], got {self.flip_prob}")
-        for name in ("brightness", "contrast", "gamma", "noise_std", "checkpoint_minutes"):
+        for name in ("brightness", "contrast", "gamma", "noise_std", "checkpoint_minutes", "exposure", "vignetting",
+                     "sensor_noise", "rolling_shutter", "distortion"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"train.{name} must be >= 0, got {getattr(self, name)}")
+        from codeslam.network.camera_effects import BLUR_TAPS
+
+        if not 0 <= self.motion_blur <= BLUR_TAPS:
+            raise ConfigError(f"train.motion_blur must lie in [0, {BLUR_TAPS}] pixels, got {self.motion_blur}")
+        if self.vignetting > 1 or self.distortion > 0.5:
+            raise ConfigError("train.vignetting must be at most 1 and train.distortion at most 0.5")
         if self.workers < 0:
             raise ConfigError(f"train.workers must be >= 0, got {self.workers}")
 

@@ -26,6 +26,7 @@ from codeslam.errors import DatasetError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.image import rgb_to_gray
 from codeslam.geometry.resample import resample_depth, resample_image
+from codeslam.network.camera_effects import CameraEffects, apply_camera_effects
 from codeslam.network.config import TrainConfig
 
 #: depth units per metre of the in-memory store (the TUM / generator convention): 0.2 mm steps, max 13.1 m
@@ -45,17 +46,20 @@ class FrameStore:
         images: (N, 3, H, W) uint8 RGB.
         depth: (N, H, W) uint16 depth in 1/DEPTH_UNITS_PER_M m, 0 = invalid.
         groups: one (source name, start, stop) per shard / sequence, contiguous blocks of frames.
+        group_weights: per group, the times its training frames appear in an epoch (:func:`split_train_val`).
     """
 
     images: torch.Tensor
     depth: torch.Tensor
     groups: list[tuple[str, int, int]]
+    # per group: how many times its training frames appear per epoch (None: once each)
+    group_weights: list[float] | None = None
 
     def __len__(self) -> int:
         return self.images.shape[0]
 
     def to(self, device: torch.device | str) -> FrameStore:
-        return FrameStore(self.images.to(device), self.depth.to(device), self.groups)
+        return FrameStore(self.images.to(device), self.depth.to(device), self.groups, self.group_weights)
 
 
 def _same_camera(a: PinholeCamera, b: PinholeCamera, rtol: float = 1e-6) -> bool:
@@ -141,13 +145,31 @@ def read_sequence_to_canonical(
     return torch.stack([p[0] for p in pairs]), torch.stack([p[1] for p in pairs])
 
 
+def parse_source(spec: str | Path) -> tuple[Path, float]:
+    """``PATH`` or ``PATH:WEIGHT`` -> (path, weight): the frames of a source appear WEIGHT times per epoch
+    (a fraction < 1 takes that share of them; default 1). A path that exists as written is taken whole, so a
+    folder whose name ends in ':<number>' still works."""
+    text = str(spec)
+    head, sep, tail = text.rpartition(":")
+    if not sep or Path(text).exists():
+        return Path(text), 1.0
+    try:
+        weight = float(tail)
+    except ValueError:
+        return Path(text), 1.0
+    if not (math.isfinite(weight) and weight > 0):
+        raise DatasetError(f"--data {text}: the weight after ':' must be a positive number, got {tail!r}")
+    return Path(head), weight
+
+
 def load_training_data(
     paths: list[str | Path], camera: PinholeCamera, workers: int = 2, log: ProgressFn | None = None
 ) -> FrameStore:
-    """Read every source in ``paths`` (shard folders, single shard files or dataset folders) at ``camera``."""
-    images, depths, groups = [], [], []
+    """Read every source in ``paths`` (shard folders, single shard files or dataset folders, each optionally
+    ``PATH:WEIGHT``, :func:`parse_source`) at ``camera``."""
+    images, depths, groups, weights = [], [], [], []
     n = 0
-    for p in map(Path, paths):
+    for p, w in map(parse_source, paths):
         if not p.exists():
             raise DatasetError(f"training data not found: {p}")
         shards = [p] if p.is_file() else shard_files(p)
@@ -161,23 +183,30 @@ def load_training_data(
             images.append(img)
             depths.append(dep)
             groups.append((name, n, n + img.shape[0]))
+            weights.append(w)
             n += img.shape[0]
             if log is not None:
                 log(f"loaded {img.shape[0]} frames from {name}")
     if n == 0:
         raise DatasetError("no training frames found in " + ", ".join(map(str, paths)))
-    return FrameStore(torch.cat(images), torch.cat(depths), groups)
+    return FrameStore(torch.cat(images), torch.cat(depths), groups, weights)
 
 
 def split_train_val(store: FrameStore, val_fraction: float, val_max_frames: int) -> tuple[torch.Tensor, torch.Tensor]:
     """Hold out the last ``val_fraction`` of every group (contiguous, so neighbouring video frames rarely straddle
-    the split) -> train indices (N_t,), validation indices (N_v,) (at most ``val_max_frames``, evenly spaced)."""
+    the split) -> train indices (N_t,), validation indices (N_v,) (at most ``val_max_frames``, evenly spaced).
+    A group of weight w contributes its training frames round(w * n) times (cycled), so a small real set can
+    carry a stated share of every epoch."""
     train, val = [], []
-    for _, start, stop in store.groups:
+    weights = store.group_weights or [1.0] * len(store.groups)
+    for (_, start, stop), w in zip(store.groups, weights, strict=True):
         n_val = int(round((stop - start) * val_fraction))
         if val_fraction > 0 and stop - start >= 2:
             n_val = max(1, n_val)
-        train.append(torch.arange(start, stop - n_val))
+        idx = torch.arange(start, stop - n_val)
+        if w != 1.0 and len(idx):  # a weighted source: its frames cycled to round(w * n) entries per epoch
+            idx = idx.repeat(math.ceil(w))[: max(1, round(w * len(idx)))]
+        train.append(idx)
         val.append(torch.arange(stop - n_val, stop))
     train_idx, val_idx = torch.cat(train), torch.cat(val)
     if len(val_idx) > val_max_frames:
@@ -224,6 +253,13 @@ class DataOrder:
         return self.train_idx[self._perm[j * self.batch_size : (j + 1) * self.batch_size]]
 
 
+def camera_effects_of(cfg: TrainConfig) -> CameraEffects | None:
+    """The camera effects a training config asks for (None when all are off)."""
+    fx = CameraEffects(cfg.exposure, cfg.vignetting, cfg.sensor_noise, cfg.motion_blur, cfg.rolling_shutter,
+                       cfg.distortion)
+    return fx if fx.any else None
+
+
 def augment_batch(
     images: torch.Tensor, depth: torch.Tensor, cfg: TrainConfig, in_channels: int, generator: torch.Generator
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -233,7 +269,9 @@ def augment_batch(
     images (B, 3, H, W) uint8, depth (B, H, W) uint16 -> image (B, in_channels, H, W) float in [0, 1],
     depth (B, 1, H, W) float metres. Horizontal flips (image and depth together) keep the canonical camera
     (its principal point is centred); photometric jitter (gamma, contrast about the image mean, brightness,
-    Gaussian noise) teaches robustness to exposure and sensor differences between datasets.
+    Gaussian noise) teaches robustness to exposure and sensor differences between datasets; with any of the
+    config's camera effects on (:mod:`codeslam.network.camera_effects`), they are applied after the gamma, on
+    RGB, before the rest (their draws come after the four above, so runs without them are unchanged).
     """
     B = images.shape[0]
     dev = images.device
@@ -245,6 +283,9 @@ def augment_batch(
     d = torch.where(flip, d.flip(-1), d)
     gamma = torch.exp((2 * u[:, 1] - 1) * cfg.gamma).view(B, 1, 1, 1)
     x = x.clamp_min(0) ** gamma
+    fx = camera_effects_of(cfg)
+    if fx is not None and fx.any:  # the image formation of a real camera (data version 2's sensor)
+        x, d = apply_camera_effects(x, d, fx, generator)
     if in_channels == 1:
         x = rgb_to_gray(x)  # (B, 1, H, W)
     mean = x.mean(dim=(1, 2, 3), keepdim=True)

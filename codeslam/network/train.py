@@ -6,6 +6,8 @@
 * Outputs in the run folder RUN: ``config.yaml`` (resolved config), ``log.csv`` (averaged training losses),
   ``val.csv`` (validation), ``checkpoint.safetensors`` (model + Adam state + progress, atomically, every
   ``checkpoint_every`` steps / ``checkpoint_minutes``) and at the end ``weights.safetensors``.
+* Fine-tuning: ``train.init_weights`` starts from a weights file of the same architecture instead of random
+  weights (a resumed run takes its weights from the checkpoint).
 * Resume: every random draw of step s is a function of (seed, s, rank) and the data order of epoch e a function
   of (seed, e), so continuing from a checkpoint repeats exactly the steps an uninterrupted run would take.
 * Multi-process: under ``torchrun`` (WORLD_SIZE > 1) the model is wrapped in DistributedDataParallel (gloo on
@@ -386,6 +388,12 @@ def _train(data, run_dir, config, resume, stop_after, progress, log, store, d: _
         say(f"resuming {run_dir} at step {start}")
     elif resume:
         say(f"warning: --resume: {run_dir} holds no {CHECKPOINT_NAME}; starting a new run")
+    if not can_resume and tcfg.init_weights:  # fine-tuning: start from a trained network of the same architecture
+        from codeslam.network.weights import load_model
+
+        init = None if tcfg.init_weights == "default" else tcfg.init_weights  # "default": the shipped weights
+        model.load_state_dict(load_model(init, device=device, config=ncfg).state_dict())
+        say(f"starting from the weights {tcfg.init_weights}")
 
     if store is None:
         store = load_training_data(list(data), model.camera, tcfg.workers, log=say)

@@ -120,3 +120,26 @@ def test_augmentation_flips_image_and_depth_together():
     x2, _ = augment_batch(images, depth, jitter, 3, torch.Generator().manual_seed(5))
     assert torch.equal(x1, x2) and x1.shape == (2, 3, 4, 8)  # reproducible from the generator
     assert 0 <= x1.min() and x1.max() <= 1
+
+
+def test_weighted_sources_and_their_share_of_an_epoch(tmp_path):
+    from pathlib import Path
+
+    from codeslam.network.data import FrameStore, parse_source, split_train_val
+
+    assert parse_source("/data/real:8") == (Path("/data/real"), 8.0)
+    assert parse_source("/data/real") == (Path("/data/real"), 1.0)
+    odd = tmp_path / "run:3"
+    odd.mkdir()
+    assert parse_source(str(odd)) == (odd, 1.0)  # an existing folder is taken as named
+    with pytest.raises(DatasetError, match="positive"):
+        parse_source("/data/real:0")
+    store = FrameStore(torch.zeros(30, 3, 4, 4, dtype=torch.uint8), torch.zeros(30, 4, 4, dtype=torch.uint16),
+                       [("synth", 0, 20), ("real", 20, 30)], [1.0, 3.0])
+    train, val = split_train_val(store, 0.1, 100)
+    assert len(val) == 3  # the last 10% of each group
+    real = train[train >= 20]
+    assert len(real) == 27 and set(real.tolist()) == set(range(20, 29))  # 9 training frames, 3 times each
+    store.group_weights = [1.0, 0.5]
+    train, _ = split_train_val(store, 0.1, 100)
+    assert int((train >= 20).sum()) == 4  # round(0.5 * 9) of them

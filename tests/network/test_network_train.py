@@ -172,3 +172,27 @@ def test_train_library_call_with_two_sources(tmp_path, tiny_shards, tiny_config)
         "config.yaml", "log.csv", "val.csv", "checkpoint.safetensors", "weights.safetensors"}
     assert main(["train", "--data", *map(str, shards), "--out", str(tmp_path / "cli"), "--steps", "1",
                  "--batch-size", "4", "--code-size", "8", "--size", "32x32", "--no-progress"]) == 0
+
+
+def test_fine_tuning_starts_from_the_given_weights(tmp_path, tiny_shards, tiny_yaml, tiny_config):
+    from codeslam.network.weights import save_weights
+
+    torch.manual_seed(123)
+    start = CodeNetwork(tiny_config())
+    save_weights(tmp_path / "start.safetensors", start)
+    assert _train_cli(tiny_shards, tmp_path / "ft", tiny_yaml, "--steps", "1", "--init",
+                      str(tmp_path / "start.safetensors")) == 0
+    assert _train_cli(tiny_shards, tmp_path / "scratch", tiny_yaml, "--steps", "1") == 0
+    ref = start.state_dict()
+
+    def dist(run: str) -> float:
+        w = _weights(tmp_path / run / "weights.safetensors")
+        return sum(float((w[k].float() - ref[k].float()).abs().sum()) for k in ref if ref[k].is_floating_point())
+
+    assert dist("ft") < 0.05 * dist("scratch")  # one small Adam step away from the start, not from random weights
+    cfg = (tmp_path / "ft" / "config.yaml").read_text()
+    assert "init_weights: " + str(tmp_path / "start.safetensors") in cfg
+    wrong = tiny_config(code_size=4)
+    save_weights(tmp_path / "wrong.safetensors", CodeNetwork(wrong))
+    assert _train_cli(tiny_shards, tmp_path / "bad", tiny_yaml, "--steps", "1", "--init",
+                      str(tmp_path / "wrong.safetensors")) != 0

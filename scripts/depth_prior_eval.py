@@ -1,0 +1,169 @@
+"""How good is the network's zero-code depth as a prior? The table of issue 13 for one or more weight files.
+
+For every evaluation set, the zero-code depth ``D(I, 0)`` (``codeslam depth --mode zero``) is compared with the
+ground truth at the canonical camera: proximity RMSE (a = the network's average depth, 1.5 m), the RMSE of the
+best single constant proximity on the same pixels, their ratio (below 1: the prior carries information), and
+the median over all valid pixels of predicted / true depth (1: right scale).
+
+Sets (name=PATH[@FRAMES], FRAMES in the ``--frames`` grammar; shard folders take their first ``--shard-views``):
+
+* ``tum`` and ``hololens``: ``../shared/data`` frames 0:180:4 (issue 13's measurement), never trained on;
+* ``cabinet``, ``realsense``, ``redwood``, ``office``: the validation halves of ``../shared/train_data``
+  (``scripts/split_real_rgbd.py``);
+* ``gen_v1``, ``gen_v2``: held-out generator shards of data versions 1 and 2 (seeds 4001 and 4000).
+
+    python scripts/depth_prior_eval.py --weights W [--weights W2 ...] [--set name=PATH[@FRAMES] ...]
+        [--json OUT.json] [--markdown OUT.md] [--threads 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import torch
+
+SHARED = Path(__file__).resolve().parents[2] / "shared"
+DEFAULT_SETS = {
+    "tum": f"{SHARED}/data/tum_fr1_rpy@0:180:4",
+    "hololens": f"{SHARED}/data/hololens_dvmvs@0:180:4",
+    "cabinet": "/work/train_data/real_split/val/tum_fr3_cabinet_kf",
+    "realsense": "/work/train_data/real_split/val/realsense_room_floorlevel_felixchenfy",
+    "redwood": "/work/train_data/real_split/val/redwood_livingroom_synthetic_open3d",
+    "office": "/work/train_data/real_split/val/tum_fr3_office_single_open3d",
+    "gen_v1": "/work/train_data/val128_v1",
+    "gen_v2": "/work/train_data/val128_v2",
+}
+
+
+class PriorStats:
+    """Pooled sums over valid pixels: zero-code proximity errors, ground-truth proximity moments and the
+    predicted / true depth ratios (kept for the median)."""
+
+    def __init__(self) -> None:
+        self.n, self.se, self.s1, self.s2 = 0, 0.0, 0.0, 0.0
+        self.ratios: list[torch.Tensor] = []
+
+    def add(self, prox_pred: torch.Tensor, depth_gt: torch.Tensor, a: float) -> None:
+        """prox_pred, depth_gt: (..., H, W); depth 0 = invalid."""
+        valid = torch.isfinite(depth_gt) & (depth_gt > 0)
+        g = (a / (depth_gt[valid] + a)).double()
+        p = prox_pred[valid].double()
+        self.n += int(valid.sum())
+        self.se += float((p - g).square().sum())
+        self.s1 += float(g.sum())
+        self.s2 += float(g.square().sum())
+        d_pred = a * (1.0 - p.clamp(1e-6, 1 - 1e-6)) / p.clamp(1e-6, 1 - 1e-6)  # Eq. 4 inverted
+        self.ratios.append((d_pred / depth_gt[valid].double()).float())
+
+    def result(self) -> dict:
+        if self.n == 0:
+            return {"pixels": 0}
+        rmse = math.sqrt(self.se / self.n)
+        const = math.sqrt(max(self.s2 / self.n - (self.s1 / self.n) ** 2, 0.0))
+        r = torch.cat(self.ratios)
+        if r.numel() > 4_000_000:
+            r = r[torch.randperm(r.numel(), generator=torch.Generator().manual_seed(0))[:4_000_000]]
+        return {"pixels": self.n, "zero_rmse": rmse, "const_rmse": const, "ratio": rmse / const,
+                "median_depth_ratio": float(r.median())}
+
+
+def _dataset_frames(model, path: str, frames: str | None):
+    from codeslam.cli.common import open_frames
+
+    seq, idx = open_frames(Path(path), None, frames)
+    for i in idx:
+        f = model.canonical(seq[i])
+        yield f.image, f.depth
+
+
+def _shard_frames(model, path: str, views: int):
+    from codeslam.network.data import depth_metres, read_shard_to_canonical, shard_files
+
+    files = [Path(path)] if Path(path).is_file() else shard_files(Path(path))
+    left = views
+    for s in files:
+        img, dep = read_shard_to_canonical(s, model.camera)
+        for i in range(min(left, img.shape[0])):
+            yield img[i].float() / 255.0, depth_metres(dep[i])
+        left -= img.shape[0]
+        if left <= 0:
+            return
+
+
+def evaluate(model, path: str, frames: str | None, shard_views: int, batch: int = 16) -> dict:
+    """Zero-code prior statistics of one set (dataset folder or shard folder)."""
+    from codeslam.network.data import shard_files
+
+    p = Path(path)
+    is_shards = p.is_file() or bool(shard_files(p))
+    source = _shard_frames(model, path, shard_views) if is_shards else _dataset_frames(model, path, frames)
+    stats, images, depths, n = PriorStats(), [], [], 0
+
+    def flush():
+        feats = model.features(torch.stack(images))
+        code = feats[0].new_zeros(len(images), model.code_size)
+        prox = model.decode(feats, code)[0][:, 0].cpu()  # (B, H, W) finest level
+        stats.add(prox, torch.stack(depths), model.avg_depth)
+
+    for image, depth in source:
+        images.append(image)
+        depths.append(depth)
+        n += 1
+        if len(images) == batch:
+            flush()
+            images, depths = [], []
+    if images:
+        flush()
+    return {"frames": n, **stats.result()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--weights", action="append", default=None, help="weights file (repeat); 'default' = shipped")
+    ap.add_argument("--set", action="append", default=None, help="name=PATH[@FRAMES] (repeat); default: all")
+    ap.add_argument("--only", default=None, help="comma list of default set names to evaluate")
+    ap.add_argument("--shard-views", type=int, default=256)
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--markdown", type=Path, default=None)
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+    from codeslam.depthmodel import DepthModel
+
+    sets = dict(DEFAULT_SETS)
+    if args.only:
+        sets = {k: sets[k] for k in args.only.split(",")}
+    if args.set:
+        sets = dict(s.split("=", 1) for s in args.set)
+    results: dict = {}
+    rows = ["| weights | set | frames | zero-code RMSE | best constant | ratio | median depth ratio |",
+            "|---|---|---|---|---|---|---|"]
+    for w in args.weights or ["default"]:
+        model = DepthModel.load(None if w == "default" else w)
+        results[w] = {}
+        for name, spec in sets.items():
+            path, _, frames = spec.partition("@")
+            if not Path(path).exists():
+                print(f"skip {name}: {path} not found", flush=True)
+                continue
+            t0 = time.perf_counter()
+            r = evaluate(model, path, frames or None, args.shard_views)
+            r["seconds"] = time.perf_counter() - t0
+            results[w][name] = r
+            row = (f"| {Path(w).name if w != 'default' else 'shipped'} | {name} | {r['frames']} | "
+                   f"{r.get('zero_rmse', float('nan')):.4f} | {r.get('const_rmse', float('nan')):.4f} | "
+                   f"{r.get('ratio', float('nan')):.2f} | {r.get('median_depth_ratio', float('nan')):.2f} |")
+            rows.append(row)
+            print(row, flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1))
+    if args.markdown:
+        args.markdown.write_text("\n".join(rows) + "\n")
+
+
+if __name__ == "__main__":
+    main()
