@@ -321,7 +321,8 @@ def map_figure(cloud: PointCloud | None, est: Trajectory, keyframes: dict[str, n
                                                                                    dash="dash")))
     if keyframes is not None and "T_wc" in keyframes and "camera" in keyframes:
         extent = float(np.ptp(est_xyz, axis=0).max()) if len(est_xyz) > 1 else 0.0
-        median_depth = float(np.nanmedian(_finite(keyframes["depth"]))) if "depth" in keyframes else 1.0
+        depths = _finite(keyframes["depth"]) if "depth" in keyframes else np.array([np.nan])
+        median_depth = float(np.median(depths[np.isfinite(depths)])) if np.isfinite(depths).any() else 1.0
         size = 0.15 * (extent if extent > 1e-3 else median_depth)
         f = show(_frusta(keyframes["T_wc"], keyframes["camera"], size))
         fig.add_trace(go.Scatter3d(x=f[:, 0], y=f[:, 1], z=f[:, 2], mode="lines", name="keyframe cameras",

@@ -163,6 +163,18 @@ def test_keyframe_panels_show_what_the_run_stored(tmp_path):
     assert "uncertainty" in titles and "zero-code depth" in titles
 
 
+def test_a_camera_that_never_moved_and_an_empty_map_still_give_a_report(tmp_path, recwarn):
+    root = _make_run(tmp_path / "static", with_gt=False)
+    write_tum(root / "trajectory.txt", Trajectory(np.arange(N) / 30.0, np.tile(np.eye(4), (N, 1, 1))))
+    kf = dict(np.load(root / "keyframes.npz"))
+    kf["T_wc"], kf["depth"] = np.tile(np.eye(4), (4, 1, 1)), np.full_like(kf["depth"], np.nan)
+    np.savez(root / "keyframes.npz", **kf)
+    (root / "map.ply").unlink()
+    page = write_report(root).read_text()
+    assert 'id="fig-map"' in page and 'id="fig-keyframes"' in page
+    assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
+
+
 def test_view_axes_find_up_from_upright_cameras():
     gt = _circle_poses(20)
     e1, e2, up = view_axes(gt)
