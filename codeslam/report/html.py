@@ -123,6 +123,15 @@ def failure_counts(run: RunFiles) -> tuple[dict[str, int], str]:
     return ({"reason not recorded": n} if n else {}), "result.json"
 
 
+#: The order a frame goes through the stages (result.json stores them sorted by name); unknown ones follow.
+STAGE_ORDER = ("read", "resample", "features", "track", "relocalise", "decode", "marginalise", "window")
+
+
+def _in_stage_order(times: dict) -> dict:
+    rank = {k: i for i, k in enumerate(STAGE_ORDER)}
+    return dict(sorted(times.items(), key=lambda kv: (rank.get(kv[0], len(rank)), kv[0])))
+
+
 def statistics_html(run: RunFiles) -> str:
     """Tracking outcome per status, failures by reason, speed and time per stage."""
     s = run.summary
@@ -138,10 +147,10 @@ def statistics_html(run: RunFiles) -> str:
         speed_rows.append(("frames per second (with reading)", _num(s["fps_with_io"], 2)))
     if "wall_s" in s:
         speed_rows.append(("wall time [s]", _num(s["wall_s"], 1)))
-    per_frame = s.get("ms_per_frame") or {}
+    per_frame = _in_stage_order(s.get("ms_per_frame") or {})
     total = sum(float(v) for v in per_frame.values()) or 1.0
     stage_rows = [(k, _num(v, 1), _num(100 * float(v) / total, 1)) for k, v in per_frame.items()]
-    per_kf = s.get("ms_per_keyframe") or {}
+    per_kf = _in_stage_order(s.get("ms_per_keyframe") or {})
     kf_rows = [(k, _num(v, 1)) for k, v in per_kf.items()]
     parts = ['<div class="cols">',
              "<div><h3>Frames by tracking status</h3>" + _table(status_rows, ("status", "frames")) + "</div>",
