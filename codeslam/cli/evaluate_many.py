@@ -16,7 +16,15 @@ import typer
 
 from codeslam.cli.app import app
 from codeslam.cli.common import Device, Format, Frames, Quiet, Threads, Weights
-from codeslam.cli.slam import VideoCamera, VideoEvery, VideoFov, VideoFps
+from codeslam.cli.slam import (
+    DepthModelName,
+    SlamConfigFile,
+    StandinSize,
+    VideoCamera,
+    VideoEvery,
+    VideoFov,
+    VideoFps,
+)
 from codeslam.errors import ConfigError
 
 #: The table's columns: (CSV name, Markdown header, summary key, decimals in Markdown). Without ground truth the
@@ -100,11 +108,11 @@ def evaluate_command(
     fmt: Format = None,
     frames: Frames = None,
     weights: Weights = None,
-    config: Path | None = typer.Option(None, "--config", help="YAML overlay of the SLAM configuration (all runs)."),
+    config: SlamConfigFile = None,
     device: Device = None,
-    depth_model: str = typer.Option("network", "--depth-model", help="network or standin (as for `codeslam slam`)."),
+    depth_model: DepthModelName = "network",
     threads: Threads = None,
-    size: str = typer.Option("128x96", "--size", help="--depth-model standin: the camera's WIDTHxHEIGHT."),
+    size: StandinSize = "128x96",
     camera: VideoCamera = None,
     fov: VideoFov = None,
     fps: VideoFps = None,

@@ -16,6 +16,14 @@ from codeslam.errors import ConfigError
 
 DEPTH_MODELS = ("network", "standin")
 
+# Options of a SLAM run (`slam` and `evaluate` share them).
+SlamConfigFile = Annotated[Path | None, typer.Option("--config", help="YAML overlay of the SLAM configuration.")]
+DepthModelName = Annotated[str, typer.Option(
+    "--depth-model", help="network (the trained network) or standin (a network-free stand-in built from the "
+    "dataset's own depth, an oracle for testing the tracking and mapping back-end).")]
+StandinSize = Annotated[str, typer.Option(
+    "--size", help="--depth-model standin: the camera's WIDTHxHEIGHT (the network uses its own canonical camera).")]
+
 # Options of a video input (a dataset folder carries its own camera and is subsampled with --frames).
 VideoCamera = Annotated[Path | None, typer.Option(
     "--camera", help="Video: calibration file (camera.yaml: fx, fy, cx, cy, optional width, height, dist); without "
@@ -130,16 +138,13 @@ def slam_command(
     fmt: Format = None,
     frames: Frames = None,
     weights: Weights = None,
-    config: Path | None = typer.Option(None, "--config", help="YAML overlay of the SLAM configuration."),
+    config: SlamConfigFile = None,
     json_out: JsonOut = None,
     viewer: str = typer.Option("none", "--viewer", help="Live viewer: none or rerun (needs rerun-sdk)."),
     device: Device = None,
-    depth_model: str = typer.Option("network", "--depth-model", help="network (the trained network) or standin "
-                                    "(a network-free stand-in built from the dataset's own depth, an oracle for "
-                                    "testing the tracking and mapping back-end)."),
+    depth_model: DepthModelName = "network",
     threads: Threads = None,
-    size: str = typer.Option("128x96", "--size", help="--depth-model standin: the camera's WIDTHxHEIGHT (the "
-                             "network uses its own canonical camera)."),
+    size: StandinSize = "128x96",
     camera: VideoCamera = None,
     fov: VideoFov = None,
     fps: VideoFps = None,
