@@ -80,6 +80,75 @@ class TrackerConfig:
 
 
 @dataclass(frozen=True)
+class FeatureConfig:
+    """Sparse ORB features (:mod:`codeslam.slam.frontend`): the initial pose of every alignment, reprojection
+    residuals beside the photometric ones, and relocalisation. Not in the paper, whose tracker starts from the
+    motion model alone; measured on the HoloLens walk (oracle depth, frames three apart), that start fails 11 of 19
+    alignments and the PnP start none."""
+
+    enabled: bool = True
+    """Use features (False: the paper's purely photometric tracker with a motion-model start)."""
+    scale: int = 4
+    """The feature camera is the network's camera with this many times the pixels per axis (512x384 for
+    128x96): keypoints need more pixels than the network's input holds."""
+    n_features: int = 1000
+    """ORB keypoints per image."""
+    fast_threshold: int = 12
+    """FAST's intensity threshold (0-255): lower finds more keypoints on low-contrast indoor surfaces."""
+    match_ratio: float = 0.85
+    """Lowe's ratio test: best Hamming distance below this fraction of the second best."""
+    max_hamming: int = 64
+    """Largest descriptor distance (of 256 bits) accepted as a match."""
+    guided_radius: float = 24.0
+    """Guided matching: candidates within this many feature-camera pixels of the predicted position."""
+    pnp_threshold: float = 3.0
+    """RANSAC inlier threshold of the reprojection error (feature-camera pixels)."""
+    min_inliers: int = 20
+    """PnP needs at least this many inliers to give a pose."""
+    ransac_iterations: int = 100
+    """RANSAC hypotheses at most (OpenCV stops earlier once confident)."""
+    sigma: float = 1.5
+    """Reprojection noise (feature-camera pixels) of a keypoint found at ORB's finest level; scaled by the
+    pyramid's scale factor per octave."""
+    weight: float = 1.0
+    """Weight of the reprojection residuals in the alignment (0: features give the initial pose only)."""
+
+    def __post_init__(self) -> None:
+        if self.scale < 1:
+            raise ConfigError(f"features.scale must be >= 1, got {self.scale}")
+        if self.n_features < 10 or self.min_inliers < 6:
+            raise ConfigError("features.n_features must be >= 10 and features.min_inliers >= 6")
+        if not 0 < self.match_ratio <= 1:
+            raise ConfigError(f"features.match_ratio must lie in (0, 1], got {self.match_ratio}")
+        for name in ("guided_radius", "pnp_threshold", "sigma"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"features.{name} must be positive, got {getattr(self, name)}")
+        if not self.weight >= 0 or not 0 <= self.max_hamming <= 256 or not 0 <= self.fast_threshold <= 255:
+            raise ConfigError("features.weight must be >= 0, max_hamming in [0, 256], fast_threshold in [0, 255]")
+        if self.ransac_iterations < 1:
+            raise ConfigError(f"features.ransac_iterations must be >= 1, got {self.ransac_iterations}")
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """What happens when tracking fails (ORB-SLAM relocalises, DSO re-initialises): relocalise against stored
+    keyframes, and after a few lost frames start a new map segment joined to the old one by the motion model."""
+
+    relocalise: bool = True
+    """Match a lost frame against the window's and older keyframes (needs features)."""
+    min_inliers: int = 30
+    """PnP inliers needed to accept a relocalisation (more than tracking needs: there is no prediction)."""
+    max_candidates: int = 8
+    """Keyframes tried per lost frame, nearest to the predicted pose first."""
+    lost_frames: int = 3
+    """Consecutive lost frames after which the next frame starts a new map segment at its predicted pose."""
+
+    def __post_init__(self) -> None:
+        if self.min_inliers < 6 or self.max_candidates < 1 or self.lost_frames < 1:
+            raise ConfigError("recovery.min_inliers must be >= 6, max_candidates and lost_frames >= 1")
+
+
+@dataclass(frozen=True)
 class KeyframeConfig:
     """When a tracked frame becomes a keyframe (paper Sec. 4.3, "once a certain baseline is achieved", PTAM-like).
     Any one criterion suffices; none applies to frames whose tracking failed."""
@@ -125,12 +194,34 @@ class WindowConfig:
     """Scale the prior by the pixel ratio on coarser levels, whose data terms sum over 4x fewer pixels per level."""
     sfm: SfMConfig = field(default_factory=_default_window_sfm)
     """Residuals, loss functions and solver of the window (and the photometric settings of the tracker)."""
+    reprojection_weight: float = 1.0
+    """Weight of the matched keypoints' reprojection residuals between the window's keyframes (0: none). They
+    keep a keyframe whose photometric residuals vanish (moved out of the others' view, where masked residuals
+    cost less than outliers) from running away: measured on the HoloLens walk, such a keyframe moved 284 m in one
+    solve without them."""
+    depth_scale_sigma: float = 0.1
+    """Prior on each keyframe's mean log depth at its zero-code value (:mod:`codeslam.sfm.scale_prior`): how far
+    (in log depth) the window may move a keyframe's scale from the network's prediction; 0 switches it off."""
+    rollback: bool = True
+    """Undo a window solve that fails :meth:`SlidingWindow.check`, and one after which the next frame cannot be
+    tracked while it could be against the map before the solve."""
+    max_rotation_change_deg: float = 10.0
+    """A solve may change the relative rotation of consecutive keyframes by at most this much."""
+    max_translation_change: float = 1.0
+    """... and their relative translation by at most this fraction of the baseline (or of
+    ``min_translation_scale`` times the median depth for short baselines)."""
+    min_translation_scale: float = 0.1
+    """Floor of the baseline the translation change is compared with, as a fraction of the median depth."""
+    max_depth_change: float = 0.4
+    """... and a keyframe's median depth by at most this much in log (a factor 1.5)."""
 
     def __post_init__(self) -> None:
         if self.size < 2:
             raise ConfigError(f"window.size must be >= 2 (the initialisation needs two keyframes), got {self.size}")
         if not 0.0 <= self.min_pair_overlap <= 1.0:
             raise ConfigError(f"window.min_pair_overlap must lie in [0, 1], got {self.min_pair_overlap}")
+        if not self.depth_scale_sigma >= 0:
+            raise ConfigError(f"window.depth_scale_sigma must be >= 0, got {self.depth_scale_sigma}")
         if self.sfm.rolling_shutter:  # the window's marginalisation and the tracker have no readout rotations
             raise ConfigError("window.sfm.rolling_shutter is supported by `codeslam sfm` only, not in SLAM")
 
@@ -141,6 +232,10 @@ class SLAMConfig:
 
     tracker: TrackerConfig = field(default_factory=TrackerConfig)
     """Frame-to-keyframe photometric tracking."""
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    """Sparse features: initial poses, reprojection residuals, relocalisation."""
+    recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
+    """Relocalisation and re-initialisation after tracking failures."""
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     """Keyframe selection."""
     window: WindowConfig = field(default_factory=WindowConfig)

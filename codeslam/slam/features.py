@@ -107,13 +107,14 @@ class ORBExtractor:
 
 
 def match(desc_a: np.ndarray, desc_b: np.ndarray, ratio: float, max_distance: int,
-          allowed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+          allowed: np.ndarray | None = None, with_distances: bool = False):
     """Nearest-neighbour matches of a's descriptors in b with Lowe's ratio test and a distance bound, each b
     used once (the closer a wins). ``allowed`` (Na, Nb) bool restricts the candidates (guided matching).
-    Returns index arrays (M,), (M,) into a and b."""
+    Returns index arrays (M,), (M,) into a and b (and their Hamming distances (M,) with ``with_distances``)."""
     cv2 = _cv2()
+    none = (np.zeros(0, np.int64), np.zeros(0, np.int64))
     if len(desc_a) == 0 or len(desc_b) < 2:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return (*none, np.zeros(0)) if with_distances else none
     bf = cv2.BFMatcher(cv2.NORM_HAMMING)
     mask = None if allowed is None else allowed.astype(np.uint8)
     knn = bf.knnMatch(desc_a, desc_b, k=2, mask=mask) if mask is not None else bf.knnMatch(desc_a, desc_b, k=2)
@@ -130,12 +131,13 @@ def match(desc_a: np.ndarray, desc_b: np.ndarray, ratio: float, max_distance: in
         ib.append(best.trainIdx)
         dist.append(best.distance)
     if not ia:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return (*none, np.zeros(0)) if with_distances else none
     ia_, ib_, d_ = np.array(ia), np.array(ib), np.array(dist)
     order = np.argsort(d_, kind="stable")  # each b once: keep its closest a
     _, first = np.unique(ib_[order], return_index=True)
     keep = np.sort(order[first])
-    return ia_[keep].astype(np.int64), ib_[keep].astype(np.int64)
+    out = (ia_[keep].astype(np.int64), ib_[keep].astype(np.int64))
+    return (*out, d_[keep]) if with_distances else out
 
 
 def guided_mask(uv_pred: np.ndarray, uv_b: np.ndarray, radius: float) -> np.ndarray:

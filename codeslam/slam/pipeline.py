@@ -27,17 +27,17 @@ import numpy as np
 import torch
 
 from codeslam.data.base import Sequence
-from codeslam.data.frame import resample_frame
 from codeslam.data.trajectory import Trajectory, write_tum
+from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.io import atomic_path, atomic_write, write_json
 from codeslam.slam.config import SLAMConfig
-from codeslam.slam.system import CodeSLAM, FrameResult
+from codeslam.slam.system import STATUSES, CodeSLAM, FrameResult
 from codeslam.slam.window import MapKeyframe
 from codeslam.viz import Visualizer
 
 #: The system's stages, in the order :attr:`FrameResult.timings_ms` reports them, plus the runner's own.
-STAGES = ("read", "resample", "track", "decode", "marginalise", "window")
+STAGES = ("read", "resample", "features", "track", "relocalise", "decode", "marginalise", "window")
 
 
 @dataclass
@@ -79,6 +79,10 @@ def run_slam(
     """Run ``system`` over the frame indices ``frames`` of ``sequence`` (all when None), in the order given, each
     frame resampled to ``camera``. ``progress(done, total, result)`` is called after every frame."""
     frames = range(len(sequence)) if frames is None else frames
+    if system.camera is None:
+        system.camera = camera
+    elif system.camera != camera:
+        raise CodeSLAMError("the system runs in another camera than the one given to run_slam")
     visualizer = visualizer or Visualizer()
     totals = dict.fromkeys(STAGES, 0.0)
     results = []
@@ -86,15 +90,12 @@ def run_slam(
     t_start = time.perf_counter()
     for n, i in enumerate(frames):
         t0 = time.perf_counter()
-        raw = sequence[i]
+        frame = sequence[i]
         t1 = time.perf_counter()
-        frame = resample_frame(raw, camera)
+        result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
         t2 = time.perf_counter()
-        result = system.process(frame)
-        t3 = time.perf_counter()
-        process_s += t3 - t2
+        process_s += t2 - t1
         totals["read"] += 1e3 * (t1 - t0)
-        totals["resample"] += 1e3 * (t2 - t1)
         for k, v in result.timings_ms.items():
             totals[k] = totals.get(k, 0.0) + v
         results.append(result)
@@ -144,11 +145,83 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
         "ms_per_frame": {k: v / n for k, v in run.timings_ms.items()},
         "ms_per_keyframe": {k: run.timings_ms.get(k, 0.0) / max(len(run.keyframes) - 1, 1)
                             for k in ("decode", "marginalise", "window")},
+        "status_counts": {s: sum(r.status == s for r in res) for s in STATUSES},
+        "failures_by_reason": failures_by_reason(res),
+        "segments": 1 + max(r.segment for r in res),
+        "window_rollbacks": sum(bool(r.window is not None and r.window.rejected) or bool(r.rolled_back)
+                                for r in res),
     }
     if evaluation is not None:
         out.update(evaluation)
     out.update(extra)
     return out
+
+
+def failure_kind(reason: str) -> str:
+    """A failure reason without its numbers ('overlap 0.12 below 0.30' -> 'overlap below'), so that reasons can
+    be counted."""
+    words = [w for w in reason.replace("(", " ").replace(")", " ").split() if not _is_number(w)]
+    return " ".join(words[:4]) or "unknown"
+
+
+def _is_number(word: str) -> bool:
+    try:
+        float(word.strip(",;:%"))
+    except ValueError:
+        return False
+    return True
+
+
+def failures_by_reason(results: list[FrameResult]) -> dict[str, int]:
+    """Frames whose pose is only predicted, counted by the kind of their failure reason."""
+    out: dict[str, int] = {}
+    for r in results:
+        if not r.tracking_ok:
+            k = failure_kind(r.reason)
+            out[k] = out.get(k, 0) + 1
+    return dict(sorted(out.items(), key=lambda kv: -kv[1]))
+
+
+#: Columns of the per-frame log ``frames.csv``.
+FRAME_LOG_COLUMNS = ("frame", "timestamp", "status", "reason", "is_keyframe", "keyframe_reason", "ref_keyframe",
+                     "segment", "source", "overlap", "inlier_ratio", "explained", "feature_inliers",
+                     "feature_matches", "residual", "iterations", "window_ms", "window_rejected", "rolled_back",
+                     "track_ms", "total_ms")
+
+
+def frame_log_rows(results: list[FrameResult]) -> list[dict]:
+    """One row per frame for ``frames.csv`` (:data:`FRAME_LOG_COLUMNS`): what the tracker saw and decided."""
+    rows = []
+    for r in results:
+        t, w = r.track, r.window
+        nan = float("nan")
+        rows.append({
+            "frame": r.index, "timestamp": f"{r.timestamp:.6f}", "status": r.status,
+            "reason": "" if r.is_keyframe else r.reason, "is_keyframe": int(r.is_keyframe),
+            "keyframe_reason": r.reason if r.is_keyframe else "", "ref_keyframe": r.keyframe_id,
+            "segment": r.segment, "source": r.source,
+            "overlap": _fmt(t.overlap if t else nan), "inlier_ratio": _fmt(t.inlier_ratio if t else nan),
+            "explained": _fmt(t.explained if t else nan), "feature_inliers": t.feature_inliers if t else 0,
+            "feature_matches": t.feature_matches if t else 0, "residual": _fmt(t.residual if t else nan),
+            "iterations": t.iterations if t else 0, "window_ms": _fmt(w.ms if w else nan, 1),
+            "window_rejected": w.rejected if w else "", "rolled_back": r.rolled_back,
+            "track_ms": _fmt(r.timings_ms.get("track", 0.0), 2), "total_ms": _fmt(sum(r.timings_ms.values()), 2),
+        })
+    return rows
+
+
+def _fmt(x: float, digits: int = 4) -> str:
+    return "" if not math.isfinite(x) else f"{x:.{digits}f}"
+
+
+def write_frame_log(path: str | Path, results: list[FrameResult]) -> None:
+    """The per-frame log as CSV (atomically)."""
+    import csv
+
+    with atomic_write(path) as f:
+        w = csv.DictWriter(f, fieldnames=list(FRAME_LOG_COLUMNS), lineterminator="\n")
+        w.writeheader()
+        w.writerows(frame_log_rows(results))
 
 
 # ---- outputs --------------------------------------------------------------------------------------------------
@@ -179,7 +252,12 @@ def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: Pinh
         "depth": depths,
         "image": np.stack([_rgb(k) for k in keyframes]),  # (K, 3, H, W) in [0, 1]
         "camera": np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height]),
+        "segment": np.array([k.segment for k in keyframes], dtype=np.int64),
     }
+    H, W = depths.shape[1:]
+    for name in ("depth_zero", "uncertainty", "depth_gt"):  # NaN where a keyframe has none
+        arrays[name] = np.stack([np.full((H, W), np.nan, np.float32) if getattr(k, name) is None
+                                 else getattr(k, name).detach().cpu().float().numpy() for k in keyframes])
     with atomic_path(path) as tmp:
         np.savez_compressed(tmp, **arrays)
 
@@ -191,8 +269,10 @@ def write_outputs(
     ``written``: files the caller already wrote there (e.g. the evaluation's plot). result.json is written last,
     so a run interrupted while writing leaves no summary pointing at missing files."""
     out = Path(out_dir)
-    paths = {name: out / name for name in ("trajectory.txt", "keyframes.txt", "keyframes.npz", "config.yaml")}
+    paths = {name: out / name for name in ("trajectory.txt", "keyframes.txt", "keyframes.npz", "config.yaml",
+                                           "frames.csv")}
     write_tum(paths["trajectory.txt"], run.trajectory)
+    write_frame_log(paths["frames.csv"], run.results)
     write_tum(paths["keyframes.txt"], run.keyframe_trajectory)
     write_keyframes(paths["keyframes.npz"], run.keyframes, run.camera)
     with atomic_write(paths["config.yaml"]) as f:

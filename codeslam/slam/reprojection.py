@@ -23,9 +23,11 @@ from dataclasses import dataclass
 import torch
 
 from codeslam.geometry.camera import PinholeCamera, project, project_jac
+from codeslam.geometry.image import bilinear_sample
 from codeslam.geometry.lie import hat, se3_act
+from codeslam.geometry.proximity import d_depth_d_prox, prox_to_depth
 from codeslam.sfm.residuals import huber_cost_and_weight
-from codeslam.sfm.variables import POSE, BlockId, SfMState, VariableLayout
+from codeslam.sfm.variables import CODE, POSE, BlockId, SfMState, VariableLayout
 from codeslam.sfm.warp import relative_pose, relative_pose_jacobians
 
 
@@ -55,14 +57,26 @@ class ReprojectionTerm:
     def __len__(self) -> int:
         return int(self.xyz_a.shape[0])
 
+    def points(self, state: SfMState) -> torch.Tensor:
+        """(N, 3) the points ``X_A`` in A's camera frame (fixed here; decoded from A's code in
+        :class:`DecodedReprojectionTerm`)."""
+        return self.xyz_a.to(dtype=state.poses.dtype, device=state.poses.device)
+
     def residuals(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """-> r (N, 2) pixels, x (N, 3) the points in B, T_BA (4, 4), all in the state's dtype."""
         dtype, device = state.poses.dtype, state.poses.device
         T_BA = relative_pose(state.poses[self.a], state.poses[self.b])
-        x = se3_act(T_BA, self.xyz_a.to(dtype=dtype, device=device))  # x = T_BA X_A
+        x = se3_act(T_BA, self.points(state))  # x = T_BA X_A
         params = self.camera.params(dtype, device)
         r = project(x, params) - self.uv_b.to(dtype=dtype, device=device)  # r = pi(x) - u_B
         return r, x, T_BA
+
+    def inliers(self, state: SfMState, threshold_px: float) -> torch.Tensor:
+        """(N,) bool: matches whose reprojection error at ``state`` is within ``threshold_px``, in front of B."""
+        if len(self) == 0:
+            return torch.zeros(0, dtype=torch.bool)
+        r, x, _ = self.residuals(state)
+        return ((r.norm(dim=-1) <= threshold_px) & (x[:, 2] > 1e-6)).cpu()
 
     def _robust(self, r: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """-> per-point cost (N,) ``weight rho(|r| / sigma)`` and IRLS weight (N,) ``weight rho'(s)/s / sigma^2``;
@@ -93,16 +107,85 @@ class ReprojectionTerm:
         _, w = self._robust(r, x)
         return r, J_rel @ dA, J_rel @ dB, w
 
+    def blocks(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor, list[tuple[BlockId, torch.Tensor]]]:
+        """-> r (N, 2), IRLS weights (N,) and the Jacobian of every block the residuals depend on."""
+        r, J_A, J_B, w = self.jacobians(state)
+        return r, w, [(BlockId(POSE, self.a), J_A), (BlockId(POSE, self.b), J_B)]
+
     def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
-        """Add ``J^T W J`` and ``J^T W r`` of the free poses (a and/or b) in place (IRLS, Gauss-Newton)."""
+        """Add ``J^T W J`` and ``J^T W r`` of the free blocks in place (IRLS, Gauss-Newton)."""
         if len(self) == 0:
             return
-        r, J_A, J_B, w = self.jacobians(state)
-        blocks = [(BlockId(POSE, self.a), J_A), (BlockId(POSE, self.b), J_B)]
+        r, w, blocks = self.blocks(state)
         free = [(layout.slice(b), J) for b, J in blocks if b in layout]
         for si, Ji in free:
-            Jw = Ji * w[:, None, None]  # (N, 2, 6)
+            Jw = Ji * w[:, None, None]  # (N, 2, D_i)
             g[si] += torch.einsum("nki,nk->i", Jw, r).to(g.dtype)
             for sj, Jj in free:
                 H[si, sj] += torch.einsum("nki,nkj->ij", Jw, Jj).to(H.dtype)
 
+
+@dataclass
+class DecodedReprojectionTerm(ReprojectionTerm):
+    """Matched keypoints between two keyframes of the window, A's points decoded from A's code:
+    ``X_A(c_A) = D(p0 + J c_A) ray`` at each keypoint (the linear decoder sampled bilinearly there), so the
+    residuals constrain A's code as well as both poses::
+
+        dr/dc_A = dpi/dx R_BA ray dD/dp J                                       (Eq. 4 and the paper's Eq. 9)
+
+    Attributes (besides :class:`ReprojectionTerm`'s, whose ``xyz_a`` is unused):
+        ray_a: (N, 3) rays ``((u - cx)/fx, (v - cy)/fy, 1)`` of A's keypoints.
+        prox0: (N,) A's zero-code proximity at the keypoints; jac: (C, N) its code Jacobian there.
+        avg_depth: A's decoder's average depth a.
+    """
+
+    ray_a: torch.Tensor = None
+    prox0: torch.Tensor = None
+    jac: torch.Tensor = None
+    avg_depth: float = 1.0
+
+    def __len__(self) -> int:
+        return int(self.uv_b.shape[0])
+
+    def _proximity(self, state: SfMState) -> torch.Tensor:
+        code = state.codes[self.a].to(self.jac.dtype)
+        return self.prox0 + code @ self.jac  # (N,) p0 + J c
+
+    def points(self, state: SfMState) -> torch.Tensor:
+        d = prox_to_depth(self._proximity(state), self.avg_depth)  # Eq. 4 inverted
+        return (self.ray_a * d[:, None]).to(dtype=state.poses.dtype)
+
+    def blocks(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor, list[tuple[BlockId, torch.Tensor]]]:
+        r, J_A, J_B, w = self.jacobians(state)
+        _, x, T_BA = self.residuals(state)
+        dpi = project_jac(x, self.camera.params(x.dtype, x.device))  # (N, 2, 3)
+        dd_dp = d_depth_d_prox(self._proximity(state), self.avg_depth)  # (N,)
+        dx_dd = self.ray_a.to(x.dtype) @ T_BA[:3, :3].T  # (N, 3): R_BA ray
+        J_c = (dpi @ dx_dd[..., None]) * (dd_dp[:, None, None] * self.jac.T[:, None, :]).to(x.dtype)  # (N, 2, C)
+        return r, w, [(BlockId(POSE, self.a), J_A), (BlockId(POSE, self.b), J_B), (BlockId(CODE, self.a), J_c)]
+
+
+def keyframe_pair_term(
+    a: int, b: int, uv_a: torch.Tensor, uv_b: torch.Tensor, sigma_b: torch.Tensor,
+    decoder_level, avg_depth: float, feature_camera: PinholeCamera, depth_camera: PinholeCamera,
+    weight: float = 1.0,
+) -> DecodedReprojectionTerm:
+    """The :class:`DecodedReprojectionTerm` of keypoints ``uv_a`` (M, 2) of keyframe a (feature camera) matched to
+    ``uv_b`` (M, 2) in keyframe b, with a's decoder level 0 (``decoder_level``: prox0 (H, W), jac (C, H, W))
+    sampled bilinearly at the keypoints (``depth_camera`` is the decoder's camera, same field of view)."""
+    if not (len(uv_a) == len(uv_b) == len(sigma_b)):
+        raise ValueError("keyframe_pair_term: matched arrays differ in length")
+    dtype, device = decoder_level.jac.dtype, decoder_level.jac.device
+    uv_a = uv_a.to(dtype=dtype, device=device)
+    s = feature_camera.width / depth_camera.width
+    uv_n = (uv_a + 0.5) / s - 0.5  # feature pixel -> decoder pixel (same field of view)
+    stack = torch.cat([decoder_level.prox0[None], decoder_level.jac], 0)[None]  # (1, 1 + C, H, W)
+    vals, _ = bilinear_sample(stack, uv_n[None], padding_mode="border")  # (1, 1 + C, M)
+    prox0, jac = vals[0, 0], vals[0, 1:]
+    ray = torch.stack([(uv_a[:, 0] - feature_camera.cx) / feature_camera.fx,
+                       (uv_a[:, 1] - feature_camera.cy) / feature_camera.fy, torch.ones_like(uv_a[:, 0])], -1)
+    d0 = prox_to_depth(prox0, avg_depth)
+    return DecodedReprojectionTerm(
+        a, b, ray * d0[:, None], uv_b.to(dtype=dtype, device=device), sigma_b.to(dtype=dtype, device=device),
+        feature_camera, weight=weight, ray_a=ray, prox0=prox0, jac=jac, avg_depth=float(avg_depth),
+    )

@@ -1,5 +1,5 @@
 """The SLAM system (paper Sec. 4.3), "inspired by PTAM where we alternate between tracking and mapping":
-:meth:`CodeSLAM.process` tracks each frame against the last keyframe, decides whether it becomes a keyframe,
+:meth:`CodeSLAM.process` tracks each frame against its reference keyframe, decides whether it becomes a keyframe,
 and if so decodes its depth model, marginalises the oldest keyframe when the window is full and optimises the
 window's codes and poses jointly.
 
@@ -9,9 +9,22 @@ tracked against its zero-code depth (the single-view prediction) until one shows
 becomes keyframe 1, and the first window optimisation is exactly two-frame SfM: both codes (from zero) and the
 relative pose (from the tracked one) optimised jointly, keyframe 0's pose fixed as the gauge.
 
+Beyond the paper, for cameras that travel (measured on a real 14.5 m walk, where the paper's tracker lost the
+map within seconds):
+
+* **Tracking** starts from ORB matches and PnP on the keyframe's decoded depth (:mod:`codeslam.slam.frontend`)
+  instead of the motion model alone, and the matches stay in the photometric alignment as reprojection
+  residuals (DeepFactors' sparse factors). A frame is tracked when the photometric checks pass or enough
+  matches agree with the final pose.
+* **Mapping** keeps its map: a window solve that fails :meth:`SlidingWindow.check`, or after which the next
+  frame cannot be tracked while it can against the map before the solve, is rolled back.
+* **Recovery**: a frame that fails is relocalised against the window's and older keyframes (ORB + PnP); after
+  ``recovery.lost_frames`` lost frames the next one starts a new map segment at its predicted pose. Every
+  frame's pose is marked ``tracked``, ``relocalised`` or ``predicted``.
+
 Every frame's pose is kept relative to its reference keyframe (``T_wc = T_wk T_kf``), so the trajectory follows
-the keyframes when the window optimisation moves them. The core never opens a file: reading, resampling,
-timing and writing results belong to :mod:`codeslam.slam.pipeline`.
+the keyframes when the window optimisation moves them. The core never opens a file: reading, timing and writing
+results belong to :mod:`codeslam.slam.pipeline`.
 """
 
 from __future__ import annotations
@@ -24,24 +37,30 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from codeslam.data.frame import Frame
+from codeslam.data.frame import Frame, resample_frame
 from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
+from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.lie import se3_inverse
 from codeslam.sfm.decoder import LinearDecoder
 from codeslam.sfm.keyframes import Keyframe
 from codeslam.slam.config import SLAMConfig
+from codeslam.slam.features import Features, scaled_camera, to_uint8
+from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
 from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
 from codeslam.slam.poses import project_to_se3
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
-from codeslam.slam.window import MapKeyframe, SlidingWindow, WindowReport
+from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport, WindowSnapshot
 
 #: A keyframe's depth model: the frame (resampled to the model's camera) -> its linear decoder
 #: ``prox_l(c) = prox0_l + J_l c`` on every pyramid level. The network's reads ``frame.image`` only
 #: (:func:`codeslam.slam.depth.network_depth_model`); a stand-in may read the frame's depth.
 DepthModelFactory = Callable[[Frame], LinearDecoder]
 
-INITIALISING, TRACKING, LOST = "initialising", "tracking", "lost"
+# A frame's status: the map's first keyframe and the frames before the second ('initialising'), tracked
+# against a keyframe, relocalised after a failure, or only predicted by the motion model (tracking failed).
+INITIALISING, TRACKED, RELOCALISED, PREDICTED = "initialising", "tracked", "relocalised", "predicted"
+STATUSES = (INITIALISING, TRACKED, RELOCALISED, PREDICTED)
 
 
 @dataclass
@@ -52,15 +71,20 @@ class FrameResult:
         index, timestamp: the frame's.
         T_wc: (4, 4) float64 pose estimate at the time of processing (the final trajectory, after later window
             optimisations moved the keyframes, is :meth:`CodeSLAM.trajectory`).
-        tracking_ok: False when tracking failed; T_wc is then the motion model's prediction.
-        status: 'initialising' (one keyframe so far), 'tracking' or 'lost' (tracking failed on this frame).
+        tracking_ok: False when the pose is only predicted (tracking and relocalisation failed).
+        status: one of :data:`STATUSES`.
         keyframe_id: the keyframe this frame's pose is relative to (its own id if it became one).
         is_keyframe: whether the frame became a keyframe.
-        reason: why tracking failed, or why the frame became a keyframe (baseline, rotation, overlap).
+        reason: why tracking failed, or why the frame became a keyframe (baseline, rotation, overlap, first
+            frame, relocalised, new segment).
+        segment: the map segment (0 until tracking is lost long enough to start a new one).
+        source: what the pose rests on: 'direct' (photometric only), 'direct+features', 'features' (PnP only),
+            'motion model'.
         track: tracking statistics (None for the first frame). keyframe: the keyframe decision (None when not
             tracked). window: the window optimisation run for a new keyframe (else None).
         marginalised_id: id of the keyframe marginalised on this frame, if any.
-        timings_ms: wall time per stage: track, decode, marginalise, window.
+        rolled_back: a window solve was undone on this frame (its reason).
+        timings_ms: wall time per stage: resample, features, track, relocalise, decode, marginalise, window.
     """
 
     index: int
@@ -71,10 +95,13 @@ class FrameResult:
     keyframe_id: int
     is_keyframe: bool
     reason: str = ""
+    segment: int = 0
+    source: str = ""
     track: TrackResult | None = None
     keyframe: KeyframeDecision | None = None
     window: WindowReport | None = None
     marginalised_id: int | None = None
+    rolled_back: str = ""
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -88,6 +115,14 @@ class _FrameRecord:
     T_kf: torch.Tensor
     ok: bool
     affine: torch.Tensor | None
+
+
+@dataclass
+class _Views:
+    """One input frame as the system uses it: in the network's camera, and its keypoints in the feature camera."""
+
+    frame: Frame
+    features: Features | None
 
 
 class _StageTimer:
@@ -110,88 +145,268 @@ class _StageTimer:
 class CodeSLAM:
     """Dense monocular SLAM with learned depth codes (paper Sec. 4).
 
-    config: the system's settings; depth_model: a :data:`DepthModelFactory` called once per keyframe. Frames
-    must all come from one camera, the depth model's (the pipeline resamples them to it).
+    config: the system's settings; depth_model: a :data:`DepthModelFactory` called once per keyframe; camera:
+    the depth model's camera, to which every frame is resampled (the paper's intrinsics correction, Sec. 5.3);
+    None takes the first frame's camera.
     """
 
-    def __init__(self, config: SLAMConfig, depth_model: DepthModelFactory) -> None:
+    def __init__(self, config: SLAMConfig, depth_model: DepthModelFactory,
+                 camera: PinholeCamera | None = None) -> None:
         self.config = config
         self.depth_model = depth_model
         self.device = torch.device(config.device)
         self.dtype = config.torch_dtype
+        self.camera = camera
         self.tracker = PhotometricTracker(config.tracker, config.window.sfm)
+        self.sparse: SparseTracker | None = None  # made with the camera (first frame)
         self.window = SlidingWindow(config.window)
         self.keyframes: list[MapKeyframe] = []  # every keyframe ever made, by id
+        self.ref: MapKeyframe | None = None  # the keyframe frames are tracked against
+        self.segment = 0
         self._records: list[_FrameRecord] = []
         self._keyframe_record: dict[int, int] = {}  # keyframe id -> position of its frame's record
+        self._matches: FrameMatches | None = None  # the last frame's keypoints matched to the reference
+        self._lost = 0  # consecutive frames whose pose is only predicted
+        self._undo: tuple[WindowSnapshot, MapKeyframe] | None = None  # the map before the last window solve
 
     # ---- the algorithm --------------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
-        """Track ``frame`` against the last keyframe, maybe make it a keyframe, optimise the window and
-        marginalise the oldest keyframe (paper Sec. 4.2-4.3)."""
+        """Track ``frame`` against the reference keyframe (relocalise it when that fails), maybe make it a
+        keyframe, optimise the window and marginalise the oldest keyframe (paper Sec. 4.2-4.3)."""
         timer = _StageTimer(self.device)
         self._check(frame)
+        views = self._views(frame, timer)
         if not self.keyframes:  # the first frame is the map's origin
-            return self._start_map(frame, timer)
-        ref = self.window.keyframes[-1]
+            return self._start_map(views, timer)
+        ref = self.ref
         T_kf_guess = self._predict(ref)
-        if not bool(torch.isfinite(frame.image).all()):
-            return self._record(frame, ref, T_kf_guess, False, timer, reason="non-finite pixels in the image")
-        with timer("track"):  # Sec. 4.2: coarse-to-fine photometric alignment, keyframe depth fixed
-            track = self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, T_kf_guess,
-                                       self._affine_guess(ref), valid=frame.valid)
-        if not track.ok:  # never a wild pose: the motion model's guess, flagged
-            return self._record(frame, ref, T_kf_guess, False, timer, track=track, reason=track.reason)
-        frames_since = len(self._records) - self._keyframe_record[ref.id]  # 1 for the frame after the keyframe
+        if not bool(torch.isfinite(views.frame.image).all()):
+            return self._lost_frame(views, ref, T_kf_guess, timer, None, "non-finite pixels in the image")
+        with timer("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
+            track, sparse, source = self._track(views, ref, T_kf_guess)
+        rolled_back = ""
+        if not track.ok and self._undo is not None:  # the last window solve may have broken the map
+            rolled_back = self._roll_back(f"frame {frame.index} failed after it: {track.reason}")
+            ref = self.ref
+            with timer("track"):
+                track, sparse, source = self._track(views, ref, self._predict(ref))
+        self._undo = None
+        if not track.ok:
+            with timer("relocalise"):
+                found = self._relocalise(views, ref, T_kf_guess)
+            if found is None:
+                return self._lost_frame(views, ref, T_kf_guess, timer, track, track.reason, rolled_back)
+            ref, track, sparse, source, restart = found
+            self._lost = 0
+            if restart:  # relocalised against a keyframe outside the window: re-anchor the map there
+                return self._restart(views, ref.T_wc @ track.T_kf, timer, track, RELOCALISED, "relocalised",
+                                     rolled_back)
+            self.ref = ref
+            return self._tracked(views, ref, track, sparse, source, timer, RELOCALISED, rolled_back)
+        self._lost = 0
+        return self._tracked(views, ref, track, sparse, source, timer, TRACKED, rolled_back)
+
+    def _tracked(self, views: _Views, ref: MapKeyframe, track: TrackResult, sparse: SparseTrack | None,
+                 source: str, timer: _StageTimer, status: str, rolled_back: str) -> FrameResult:
+        """A frame with a pose: keep its matches for the next frame, and make it a keyframe if it has moved far
+        enough (Sec. 4.3)."""
+        if sparse is not None and sparse.ok and views.features is not None:
+            self._matches = self.sparse.matches_for_next(ref.id, views.features, sparse)
+        else:
+            self._matches = None
+        frames_since = len(self._records) - self._keyframe_record.get(ref.id, len(self._records) - 1)
         decision = decide_keyframe(track.T_kf, ref.median_depth(), track.overlap, frames_since, True,
                                    self.config.keyframes)
+        kw = dict(track=track, decision=decision, status=status, source=source, rolled_back=rolled_back)
         if not decision.add:
-            return self._record(frame, ref, track.T_kf, True, timer, track=track, decision=decision)
-        kf, window, marginalised = self._add_keyframe(frame, ref.T_wc @ track.T_kf, timer)  # Sec. 4.3
-        return self._record(frame, kf, torch.eye(4, dtype=torch.float64), True, timer, track=track,
-                            decision=decision, window=window, marginalised=marginalised, reason=decision.reason)
+            return self._record(views.frame, ref, track.T_kf, True, timer, **kw)
+        kf, window, marginalised = self._add_keyframe(views, ref.T_wc @ track.T_kf, timer, (ref, sparse))  # 4.3
+        return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), True, timer, window=window,
+                            marginalised=marginalised, reason=decision.reason, **kw)
+
+    def _track(self, views: _Views, ref: MapKeyframe,
+               T_kf_guess: torch.Tensor) -> tuple[TrackResult, SparseTrack | None, str]:
+        """The frame's pose in ``ref``: PnP on matched keypoints (guided by the motion model's guess) starts the
+        photometric alignment, and the inlier matches join it as reprojection residuals."""
+        fcfg = self.config.features
+        sparse, term, init = None, None, T_kf_guess
+        if fcfg.enabled and views.features is not None and ref.sparse is not None:
+            sparse = self.sparse.track(ref.sparse, views.features, T_kf_guess, self._matches, ref.id)
+            if sparse.ok:
+                init = sparse.T_kf
+                if fcfg.weight > 0:
+                    term = self.sparse.term(ref.sparse, views.features, sparse, self.dtype, self.device)
+        frame = views.frame
+        track = self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, init, self._affine_guess(ref),
+                                   valid=frame.valid, reprojection=term,
+                                   min_feature_inliers=fcfg.min_inliers if term is not None else 0,
+                                   feature_threshold=fcfg.pnp_threshold)
+        if term is not None:
+            source = "direct+features" if not track.photometric_reason else "features"
+        else:
+            source = "direct"
+        return track, sparse, source
+
+    def _relocalise(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor):
+        """Match a frame that failed against stored keyframes, nearest to its predicted pose first; a match in
+        the window is refined by the photometric alignment. Returns (keyframe, track, sparse, source, restart)
+        with ``restart`` True when the keyframe has left the window, or None."""
+        rcfg = self.config.recovery
+        if not (rcfg.relocalise and self.config.features.enabled and views.features is not None):
+            return None
+        T_w_pred = ref.T_wc @ T_kf_guess
+        cands = [k for k in self.keyframes if k.sparse is not None]
+        cands.sort(key=lambda k: float((k.T_wc[:3, 3] - T_w_pred[:3, 3]).norm()))
+        cands = cands[:rcfg.max_candidates]
+        found = self.sparse.relocalise([(k.id, k.sparse) for k in cands], views.features, rcfg.min_inliers)
+        if found is None:
+            return None
+        kid, sparse = found
+        kf = self.keyframes[kid]
+        if not kf.active:  # outside the window: the PnP pose, and a new keyframe anchors the map there
+            track = TrackResult(T_kf=sparse.T_kf, affine=torch.zeros(2, dtype=torch.float64), ok=True, reason="",
+                                overlap=float("nan"), inlier_ratio=float("nan"), explained=float("nan"),
+                                cost=float("nan"), iterations=0, feature_matches=sparse.matches,
+                                feature_inliers=sparse.num_inliers)
+            return kf, track, sparse, "features", True
+        self._matches = None
+        track, sparse2, source = self._track(views, kf, sparse.T_kf)
+        if not track.ok:
+            return None
+        return kf, track, sparse2 if sparse2 is not None and sparse2.ok else sparse, source, False
+
+    def _lost_frame(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor, timer: _StageTimer,
+                    track: TrackResult | None, reason: str, rolled_back: str = "") -> FrameResult:
+        """The motion model's pose, flagged; after ``recovery.lost_frames`` such frames a new map segment."""
+        self._lost += 1
+        self._matches = None
+        if self._lost > self.config.recovery.lost_frames and bool(torch.isfinite(views.frame.image).all()):
+            self.segment += 1
+            return self._restart(views, ref.T_wc @ T_kf_guess, timer, track, PREDICTED,
+                                 f"new segment after {self._lost - 1} lost frames ({reason})", rolled_back)
+        return self._record(views.frame, ref, T_kf_guess, False, timer, track=track, reason=reason, status=PREDICTED,
+                            source="motion model", rolled_back=rolled_back)
+
+    def _restart(self, views: _Views, T_wc: torch.Tensor, timer: _StageTimer, track: TrackResult | None,
+                 status: str, reason: str, rolled_back: str) -> FrameResult:
+        """Empty the window (its keyframes stay in the map for relocalisation and output) and make this frame the
+        first keyframe of a new window at ``T_wc``, its pose the new gauge."""
+        self.window.reset()
+        self._undo, self._matches, self._lost = None, None, 0
+        with timer("decode"):
+            kf = self._make_keyframe(views, T_wc)
+        self.window.add(kf)
+        self.keyframes.append(kf)
+        self.ref = kf
+        ok = status != PREDICTED
+        return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), ok, timer, track=track,
+                            reason=reason, status=status, source="features" if ok else "motion model",
+                            rolled_back=rolled_back)
 
     def _add_keyframe(
-        self, frame: Frame, T_wc: torch.Tensor, timer: _StageTimer
+        self, views: _Views, T_wc: torch.Tensor, timer: _StageTimer,
+        tracked: tuple[MapKeyframe, SparseTrack | None] | None = None,
     ) -> tuple[MapKeyframe, WindowReport, int | None]:
         """Decode the frame's depth model, marginalise the oldest keyframe if the window is full, add the new
-        keyframe (code zero, tracked pose) and optimise the window jointly. Marginalising before the solve keeps
-        every solve at K keyframes (the paper's "4-keyframes setup") and linearises the prior at the previous
-        window's optimum."""
+        keyframe (code zero, tracked pose) and optimise the window jointly; roll the solve back if it fails the
+        window's checks. Marginalising before the solve keeps every solve at K keyframes (the paper's
+        "4-keyframes setup") and linearises the prior at the previous window's optimum."""
         with timer("decode"):
-            kf = self._make_keyframe(frame, T_wc)
+            kf = self._make_keyframe(views, T_wc)
         marginalised = None
         if self.window.is_full:
             with timer("marginalise"):  # the oldest keyframe becomes a linear prior on the others
                 marginalised = self.window.remove_oldest().id
         self.window.add(kf)
         self.keyframes.append(kf)
+        with timer("features"):
+            self._match_keyframe(kf, tracked)
+        before = self.window.snapshot()
+        depth_before = {k.id: k.median_depth() for k in self.window.keyframes}
         with timer("window"):  # all codes and poses of the window, photometric + geometric pairs (Sec. 4.1)
             report = self.window.optimise()
+        if self.config.window.rollback:
+            report.rejected = self.window.check(before, depth_before)
+            if report.rejected:
+                self.window.restore(before)
+        self._refresh_points()
+        self.ref = kf
+        self._matches = None
+        self._undo = (before, kf) if self.config.window.rollback and not report.rejected else None
         return kf, report, marginalised
 
-    def _start_map(self, frame: Frame, timer: _StageTimer) -> FrameResult:
-        if not bool(torch.isfinite(frame.image).all()):
-            raise CodeSLAMError(f"frame {frame.index} (the first) has non-finite pixels; cannot start the map")
+    def _match_keyframe(self, kf: MapKeyframe, tracked: tuple[MapKeyframe, SparseTrack | None] | None) -> None:
+        """Matched keypoints between the new keyframe and the window's others, for the window's reprojection
+        residuals: the tracking's inliers against its reference, guided matching at the current poses for the
+        rest."""
+        if kf.sparse is None:
+            return
+        ref, sparse = tracked if tracked is not None else (None, None)
+        for other in self.window.keyframes[:-1]:
+            if other.sparse is None:
+                continue
+            if ref is not None and other.id == ref.id and sparse is not None and sparse.ok:
+                ia, ib = sparse.point, sparse.frame_kp
+            else:
+                ia, ib = self.sparse.match_keyframes(other.sparse, kf.sparse.features,
+                                                     se3_inverse(kf.T_wc) @ other.T_wc)
+            if len(ia) >= self.config.features.min_inliers // 2:
+                self.window.matches[(other.id, kf.id)] = (ia, ib)
+
+    def _roll_back(self, why: str) -> str:
+        snap, kf = self._undo
+        self._undo = None
+        self.window.restore(snap)
+        self._refresh_points()
+        return why
+
+    def _start_map(self, views: _Views, timer: _StageTimer) -> FrameResult:
+        if not bool(torch.isfinite(views.frame.image).all()):
+            raise CodeSLAMError(f"frame {views.frame.index} (the first) has non-finite pixels; cannot start the map")
         with timer("decode"):
-            kf = self._make_keyframe(frame, torch.eye(4, dtype=torch.float64))
+            kf = self._make_keyframe(views, torch.eye(4, dtype=torch.float64))
         self.window.add(kf)
         self.keyframes.append(kf)
-        return self._record(frame, kf, torch.eye(4, dtype=torch.float64), True, timer, reason="first frame")
+        self.ref = kf
+        return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), True, timer, reason="first frame",
+                            status=INITIALISING)
 
     # ---- helpers --------------------------------------------------------------------------------------------
     def _check(self, frame: Frame) -> None:
         if frame.image.dim() != 3 or frame.image.shape[0] not in (1, 3):
             raise CodeSLAMError(f"frame {frame.index}: image must be (3, H, W) or (1, H, W), "
                                 f"got {tuple(frame.image.shape)}")
-        if self.keyframes and frame.camera != self.keyframes[0].keyframe.camera:
-            raise CodeSLAMError(f"frame {frame.index} has another camera than the map's; resample every frame to "
-                                "the depth model's camera first")
         if self._records and frame.timestamp <= self._records[-1].timestamp:
             raise CodeSLAMError(f"frame {frame.index}: timestamp {frame.timestamp} does not increase "
                                 f"(previous {self._records[-1].timestamp})")
 
-    def _make_keyframe(self, frame: Frame, T_wc: torch.Tensor) -> MapKeyframe:
+    def _views(self, frame: Frame, timer: _StageTimer) -> _Views:
+        """The frame in the network's camera and its keypoints in the feature camera (both resampled from the
+        input frame, so keypoints see its full resolution)."""
+        if self.camera is None:
+            self.camera = frame.camera
+        with timer("resample"):
+            net = resample_frame(frame, self.camera)
+        features = None
+        if self.config.features.enabled:
+            if self.sparse is None:
+                fcfg = self.config.features
+                self.sparse = SparseTracker(fcfg, scaled_camera(self.camera, fcfg.scale), self.camera)
+                self.window.sparse = SparseSettings(self.sparse.camera, fcfg.sigma,
+                                                    self.sparse.extract.orb.getScaleFactor())
+            with timer("features"):
+                from codeslam.geometry.resample import resample_image, resample_validity
+
+                cam = self.sparse.camera
+                gray = frame.gray[None].float()
+                hi = gray[0] if frame.camera == cam else resample_image(gray, frame.camera, cam)[0]
+                valid = resample_validity(frame.valid, frame.camera, cam) if frame.camera != cam else frame.valid
+                if bool(torch.isfinite(hi).all()):
+                    features = self.sparse.extract(to_uint8(hi), None if valid is None else valid.numpy())
+        return _Views(net, features)
+
+    def _make_keyframe(self, views: _Views, T_wc: torch.Tensor) -> MapKeyframe:
+        frame = views.frame
         decoder = self.depth_model(frame)
         H, W = frame.image.shape[-2:]
         need = self.config.decoder_levels
@@ -205,12 +420,25 @@ class CodeSLAM:
             raise CodeSLAMError("the depth model changed its code size between keyframes")
         decoder = decoder.to(dtype=self.dtype, device=self.device)
         image = frame.image.to(dtype=self.dtype, device=self.device)  # RGB kept for the map's colours
-        return MapKeyframe(
+        code = torch.zeros(decoder.code_size, dtype=self.dtype, device=self.device)
+        depth_zero = decoder.depth(code, 0).detach().cpu().float()
+        b = decoder.levels[0].uncertainty
+        kf = MapKeyframe(
             id=len(self.keyframes), frame_index=frame.index, timestamp=float(frame.timestamp),
             keyframe=Keyframe(image, frame.camera, decoder, frame.valid),
-            T_wc=project_to_se3(T_wc),
-            code=torch.zeros(decoder.code_size, dtype=self.dtype, device=self.device),
+            T_wc=project_to_se3(T_wc), code=code, depth_zero=depth_zero,
+            uncertainty=None if b is None else b.detach().cpu().float(),
+            depth_gt=None if frame.depth is None else frame.depth.detach().cpu().float(), segment=self.segment,
         )
+        if views.features is not None and len(views.features) > 0:
+            kf.sparse = KeyframeFeatures(views.features, self.sparse.points(views.features, depth_zero))
+        return kf
+
+    def _refresh_points(self) -> None:
+        """The window's keyframe points follow their codes after a solve."""
+        for k in self.window.keyframes:
+            if k.sparse is not None:
+                k.sparse.xyz = self.sparse.points(k.sparse.features, k.depth_map())
 
     def _pose(self, rec: _FrameRecord) -> torch.Tensor:
         return self.keyframes[rec.keyframe_id].T_wc @ rec.T_kf
@@ -236,6 +464,7 @@ class CodeSLAM:
         self, frame: Frame, kf: MapKeyframe, T_kf: torch.Tensor, ok: bool, timer: _StageTimer,
         track: TrackResult | None = None, decision: KeyframeDecision | None = None,
         window: WindowReport | None = None, marginalised: int | None = None, reason: str = "",
+        status: str = TRACKED, source: str = "", rolled_back: str = "",
     ) -> FrameResult:
         is_kf = kf.frame_index == frame.index
         if is_kf:
@@ -243,11 +472,13 @@ class CodeSLAM:
         affine = track.affine if (ok and track is not None and not is_kf) else None
         rec = _FrameRecord(frame.index, float(frame.timestamp), kf.id, T_kf.to(torch.float64), ok, affine)
         self._records.append(rec)
-        status = LOST if not ok else (INITIALISING if len(self.keyframes) < 2 else TRACKING)
+        if status == TRACKED and len(self.keyframes) < 2:
+            status = INITIALISING
         return FrameResult(
             index=frame.index, timestamp=float(frame.timestamp), T_wc=self._pose(rec), tracking_ok=ok,
-            status=status, keyframe_id=kf.id, is_keyframe=is_kf, reason=reason, track=track, keyframe=decision,
-            window=window, marginalised_id=marginalised, timings_ms=dict(timer.ms),
+            status=status, keyframe_id=kf.id, is_keyframe=is_kf, reason=reason, segment=self.segment, source=source,
+            track=track, keyframe=decision, window=window, marginalised_id=marginalised, rolled_back=rolled_back,
+            timings_ms=dict(timer.ms),
         )
 
     # ---- results --------------------------------------------------------------------------------------------
@@ -266,5 +497,5 @@ class CodeSLAM:
                           torch.stack([k.T_wc for k in self.keyframes]))
 
     def tracking_failures(self) -> list[int]:
-        """Indices of the frames whose tracking failed."""
+        """Indices of the frames whose pose is only predicted."""
         return [r.index for r in self._records if not r.ok]

@@ -24,6 +24,7 @@ from codeslam.sfm.solver import PairProblem, levenberg_marquardt
 from codeslam.sfm.variables import AFFINE_DIM, CODE, POSE, BlockId, SfMState, VariableLayout
 from codeslam.slam.config import TrackerConfig
 from codeslam.slam.poses import project_to_se3
+from codeslam.slam.reprojection import ReprojectionTerm
 
 
 @dataclass
@@ -43,6 +44,12 @@ class TrackResult:
             variance the warped frame explains (near 1 when aligned; an unrelated image can keep many residuals
             small by fitting a near-zero gain, but explains little of the variance).
         cost: final robust cost at the finest level; iterations: LM iterations over all levels.
+        feature_matches, feature_inliers: reprojection residuals in the alignment and those within the PnP
+            threshold at the final pose (0 without features).
+        photometric_reason: why the photometric checks alone would have failed ('' when they pass); tracking is
+            still ok when enough feature matches agree with the pose (forward motion changes much of the image
+            and fails the explained-variance check while the pose is right).
+        residual: RMS photometric residual over the overlap at the finest level (intensity units).
     """
 
     T_kf: torch.Tensor
@@ -54,6 +61,10 @@ class TrackResult:
     explained: float
     cost: float
     iterations: int
+    feature_matches: int = 0
+    feature_inliers: int = 0
+    photometric_reason: str = ""
+    residual: float = float("nan")
 
 
 def fixed_depth_decoder(decoder: LinearDecoder, code: torch.Tensor) -> LinearDecoder:
@@ -93,10 +104,15 @@ class PhotometricTracker:
         T_kf_init: torch.Tensor,
         affine_init: torch.Tensor | None = None,
         valid: torch.Tensor | None = None,
+        reprojection: ReprojectionTerm | None = None,
+        min_feature_inliers: int = 0,
+        feature_threshold: float = 3.0,
     ) -> TrackResult:
         """Align ``image`` ((1, H, W) grey or (3, H, W) RGB, seen by ``camera``) to ``keyframe`` (with decoder)
         whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,).
-        ``valid`` (H, W) bool marks the image's real pixels (None: all)."""
+        ``valid`` (H, W) bool marks the image's real pixels (None: all). ``reprojection``: matched keypoints
+        (keyframe = frame 0, this frame = frame 1) whose residuals join the photometric ones; the result is then
+        also ok when at least ``min_feature_inliers`` of them lie within ``feature_threshold`` pixels."""
         cfg, sfm_cfg = self.cfg, self.sfm_cfg
         ref = keyframe.decoder.levels[0].jac
         dtype, device = ref.dtype, ref.device
@@ -118,17 +134,25 @@ class PhotometricTracker:
         layout = VariableLayout.for_sfm(2, 1, 1, cfg.affine_brightness, fixed)
         pairs = torch.tensor([[0, 1]], device=device)  # A = keyframe (decoded depth), B = frame
         iterations = 0
+        terms = [] if reprojection is None or len(reprojection) == 0 else [reprojection]
         for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):  # coarse to fine (Sec. 4.2)
-            problem = PairProblem(levels[lvl], pairs, sfm_cfg)
+            problem = PairProblem(levels[lvl], pairs, sfm_cfg, terms)
             state, report = levenberg_marquardt(problem, state, layout, sfm_cfg, iters)
             iterations += report.iterations
         finest = levels[cfg.pyramid_levels[-1]]
-        cost, ev = PairProblem(finest, pairs, sfm_cfg).evaluate(state)
-        return self._checked(state, ev, finest.gray[0, 0].reshape(-1), cost, iterations)
+        cost, ev = PairProblem(finest, pairs, sfm_cfg, terms).evaluate(state)
+        result = self._checked(state, ev, finest.gray[0, 0].reshape(-1), cost, iterations)
+        if terms:
+            result.feature_matches = len(reprojection)
+            result.feature_inliers = int(reprojection.inliers(state, feature_threshold).sum())
+            finite = "non-finite" not in result.reason
+            if not result.ok and finite and min_feature_inliers > 0 and result.feature_inliers >= min_feature_inliers:
+                result.ok, result.reason = True, ""  # the features vouch for the pose (see TrackResult)
+        return result
 
     def _checked(self, state: SfMState, ev, gray_A: torch.Tensor, cost: float, iterations: int) -> TrackResult:
-        """The track result with the failure checks applied (non-finite, overlap, inlier ratio, explained
-        variance). ``gray_A`` (N,): the keyframe's intensities at the finest tracked level."""
+        """The track result with the photometric failure checks applied (non-finite, overlap, inlier ratio,
+        explained variance). ``gray_A`` (N,): the keyframe's intensities at the finest tracked level."""
         cfg = self.cfg
         valid = ev.valid[0, 0]  # (N,) photometric residuals of the one pair
         r = ev.r[0, 0]
@@ -138,9 +162,11 @@ class PhotometricTracker:
         inlier_ratio = int(inliers.sum()) / max(n_valid, 1)
         explained = 0.0
         var_A = 0.0
+        rms = float("nan")
         if n_valid > 1:
             var_A = float(gray_A[valid].var())
-            explained = 1.0 - float(r[valid].square().mean()) / max(var_A, torch.finfo(r.dtype).tiny)
+            rms = float(r[valid].square().mean().sqrt())
+            explained = 1.0 - rms**2 / max(var_A, torch.finfo(r.dtype).tiny)
         T_kf = project_to_se3(state.poses[1])
         affine = state.affine[0].to(device="cpu", dtype=torch.float64)
         reason = ""
@@ -157,4 +183,5 @@ class PhotometricTracker:
         elif abs(float(affine[0])) > cfg.max_log_gain:
             reason = f"brightness gain {math.exp(float(affine[0])):.2f} outside exp(+-{cfg.max_log_gain:g})"
         return TrackResult(T_kf=T_kf, affine=affine, ok=not reason, reason=reason, overlap=overlap,
-                           inlier_ratio=inlier_ratio, explained=explained, cost=cost, iterations=iterations)
+                           inlier_ratio=inlier_ratio, explained=explained, cost=cost, iterations=iterations,
+                           photometric_reason=reason, residual=rms)

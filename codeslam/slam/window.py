@@ -23,16 +23,21 @@ held by the code prior, as in two-frame SfM.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
+from codeslam.geometry.camera import PinholeCamera
+from codeslam.geometry.lie import se3_inverse, so3_log
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.normal_equations import assemble
 from codeslam.sfm.pairs import view_overlap
 from codeslam.sfm.residuals import evaluate_pairs, pair_jacobians
+from codeslam.sfm.scale_prior import DepthScalePrior
 from codeslam.sfm.solver import LMReport, PairProblem, levenberg_marquardt
 from codeslam.sfm.variables import (
     AFFINE,
@@ -46,7 +51,9 @@ from codeslam.sfm.variables import (
     VariableLayout,
 )
 from codeslam.slam.config import WindowConfig
+from codeslam.slam.frontend import KeyframeFeatures
 from codeslam.slam.poses import project_to_se3
+from codeslam.slam.reprojection import DecodedReprojectionTerm, keyframe_pair_term
 
 
 @dataclass
@@ -61,6 +68,10 @@ class MapKeyframe:
         T_wc: (4, 4) float64 CPU pose, updated by every window optimisation until marginalised.
         code: (C,) depth code (solver dtype and device), likewise.
         depth: (H, W) final depth once marginalised, else None (use :meth:`depth_map`).
+        sparse: its ORB keypoints and their 3D points at the current code (None without features).
+        depth_zero, uncertainty: (H, W) the network's zero-code depth and Laplace scale b (proximity units) at
+            the finest level, kept for reports; depth_gt: (H, W) the dataset's depth when it has one.
+        segment: the map segment the keyframe belongs to (a new one starts after tracking was lost).
     """
 
     id: int
@@ -70,6 +81,11 @@ class MapKeyframe:
     T_wc: torch.Tensor
     code: torch.Tensor
     depth: torch.Tensor | None = None
+    sparse: KeyframeFeatures | None = None
+    depth_zero: torch.Tensor | None = None
+    uncertainty: torch.Tensor | None = None
+    depth_gt: torch.Tensor | None = None
+    segment: int = 0
 
     @property
     def active(self) -> bool:
@@ -97,11 +113,12 @@ class MapKeyframe:
 @dataclass
 class WindowReport:
     """What one window optimisation did. pairs: (A, B) keyframe ids with residuals; levels: (level, LM report)
-    coarse to fine; ms: wall time."""
+    coarse to fine; ms: wall time; rejected: why the solve was rolled back ('' when kept)."""
 
     pairs: list[tuple[int, int]] = field(default_factory=list)
     levels: list[tuple[int, LMReport]] = field(default_factory=list)
     ms: float = 0.0
+    rejected: str = ""
 
     @property
     def iterations(self) -> int:
@@ -133,6 +150,46 @@ def schur_complement(
     return 0.5 * (H_new + H_new.T), g_new
 
 
+@dataclass(frozen=True)
+class SparseSettings:
+    """What the window needs to weigh matched keypoints: the feature camera, the pixel noise of a keypoint at
+    ORB's finest level and the pyramid's scale factor (noise grows by it per octave)."""
+
+    camera: PinholeCamera
+    sigma: float
+    octave_scale: float
+
+
+@dataclass
+class WindowSnapshot:
+    """Values of the window's variables at one moment: keyframe id -> (T_wc, code), pair -> affine, the pairs."""
+
+    values: dict[int, tuple[torch.Tensor, torch.Tensor]]
+    affine: dict[tuple[int, int], torch.Tensor]
+    pairs: list[tuple[int, int]]
+
+
+def bounded_quadratic(H: torch.Tensor, b: torch.Tensor, rtol: float = 1e-9) -> tuple[torch.Tensor, torch.Tensor]:
+    """The quadratic ``0.5 d^T H d + b^T d`` made bounded below: eigenvalues of the symmetric PSD ``H`` under
+    ``rtol`` times the largest become 0 and ``b`` loses its components along them. A marginal prior's ``b`` can
+    point along directions ``H`` does not constrain (the gauge, numerically), and along those the prior's cost
+    falls without end: measured on the HoloLens walk, window solves then ran the keyframes off by kilometres with
+    ever more negative costs."""
+    # Jacobi scaling first: code and pose blocks differ by orders of magnitude in information, and a threshold
+    # relative to the largest eigenvalue of H itself dropped the (real) translation information of the poses.
+    d = H.diagonal().clamp_min(0.0)
+    s = torch.where(d > 0, d.rsqrt(), torch.zeros_like(d))
+    Hs = s[:, None] * H * s[None, :]
+    lam, U = torch.linalg.eigh(0.5 * (Hs + Hs.T))
+    keep = lam > rtol * lam.abs().max().clamp_min(torch.finfo(H.dtype).tiny)
+    lam = torch.where(keep, lam, torch.zeros_like(lam))
+    Uk = U[:, keep]
+    inv_s = torch.where(s > 0, 1.0 / s, torch.zeros_like(s))
+    H_new = inv_s[:, None] * ((U * lam) @ U.T) * inv_s[None, :]
+    b_new = inv_s * (Uk @ (Uk.T @ (s * b)))
+    return 0.5 * (H_new + H_new.T), b_new
+
+
 class SlidingWindow:
     """The active keyframes (oldest first), their linear prior and the pairwise affine brightness estimates.
 
@@ -147,6 +204,9 @@ class SlidingWindow:
         self.prior_level: int = min(cfg.sfm.pyramid_levels)  # the level the prior's Hessian was built at
         self._affine: dict[tuple[int, int], torch.Tensor] = {}  # (id A, id B) -> (2,) last estimate
         self._pairs: list[tuple[int, int]] = []  # id pairs of the last optimisation (its linearisation point)
+        # Matched keypoints between keyframes: (id A, id B) -> keypoint indices into A's and B's features.
+        self.matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.sparse: SparseSettings | None = None  # set by the system when it uses features
 
     def __len__(self) -> int:
         return len(self.keyframes)
@@ -205,6 +265,26 @@ class SlidingWindow:
             x0=[x.to(dtype=solver_dtype, device=device) for x in self.prior.x0],
         )
 
+    def _pair_terms(self, ids: set[int] | None = None) -> list[DecodedReprojectionTerm]:
+        """Reprojection residuals of the matched keypoints of every keyframe pair in the window (only pairs that
+        involve ``ids`` when given), frames at window positions."""
+        if self.sparse is None or self.cfg.reprojection_weight <= 0:
+            return []
+        pos = self._positions()
+        sp = self.sparse
+        terms = []
+        for (ia, ib), (kp_a, kp_b) in self.matches.items():
+            if ia not in pos or ib not in pos or (ids is not None and not ({ia, ib} & ids)) or len(kp_a) == 0:
+                continue
+            A, B = self.keyframes[pos[ia]], self.keyframes[pos[ib]]
+            fa, fb = A.sparse.features, B.sparse.features
+            sigma = sp.sigma * sp.octave_scale ** fb.octave[kp_b].astype(np.float64)
+            terms.append(keyframe_pair_term(
+                pos[ia], pos[ib], torch.from_numpy(fa.uv[kp_a]), torch.from_numpy(fb.uv[kp_b]),
+                torch.from_numpy(sigma), A.keyframe.decoder.levels[0], A.keyframe.decoder.avg_depth, sp.camera,
+                A.keyframe.camera, self.cfg.reprojection_weight))
+        return terms
+
     def _fixed(self) -> list[BlockId]:
         """The gauge: the oldest pose while no prior anchors the window."""
         return [BlockId(POSE, 0)] if self.prior is None else []
@@ -227,11 +307,15 @@ class SlidingWindow:
         layout = VariableLayout.for_sfm(F_, C, len(id_pairs), cfg.affine_brightness, self._fixed())
         levels = build_levels([k.keyframe for k in self.keyframes], cfg.pyramid_levels, dtype, device)
         n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
+        sparse_terms = self._pair_terms()  # matched keypoints: level-independent
         for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
             # Coarser levels sum over fewer pixels: scale the prior alike so it keeps its weight against the data.
             scale = levels[lvl].uv.shape[0] / n_prior if self.cfg.scale_prior_with_level else 1.0
             prior = self._positioned_prior(scale)
-            problem = PairProblem(levels[lvl], pairs, cfg, [] if prior is None else [prior])
+            terms = ([] if prior is None else [prior]) + sparse_terms
+            if self.cfg.depth_scale_sigma > 0:  # each keyframe's scale near the network's prediction
+                terms.append(DepthScalePrior(levels[lvl], list(range(F_)), self.cfg.depth_scale_sigma))
+            problem = PairProblem(levels[lvl], pairs, cfg, terms)
             state, rep = levenberg_marquardt(problem, state, layout, cfg, iters)
             report.levels.append((lvl, rep))
         for i, kf in enumerate(self.keyframes):
@@ -245,10 +329,64 @@ class SlidingWindow:
         report.pairs, report.ms = id_pairs, 1e3 * (time.perf_counter() - t0)
         return report
 
+    # ---- keeping the map -------------------------------------------------------------------------------------
+    def snapshot(self) -> WindowSnapshot:
+        """The window's poses, codes and affine estimates, to roll a solve back."""
+        return WindowSnapshot({k.id: (k.T_wc.clone(), k.code.clone()) for k in self.keyframes},
+                              {p: a.clone() for p, a in self._affine.items()}, list(self._pairs))
+
+    def restore(self, snap: WindowSnapshot) -> None:
+        """Put back the values of ``snap`` for the keyframes still in the window."""
+        for k in self.keyframes:
+            if k.id in snap.values:
+                k.T_wc, k.code = (v.clone() for v in snap.values[k.id])
+        self._affine = {p: a.clone() for p, a in snap.affine.items()}
+        self._pairs = [p for p in snap.pairs if all(i in self._positions() for i in p)]
+
+    def check(self, before: WindowSnapshot, depth_before: dict[int, float]) -> str:
+        """Why the solve that led from ``before`` to the current values must not be kept ('' if it may): a
+        non-finite value, a relative pose between consecutive keyframes that turned or moved more than the
+        tracking could have been wrong by, or a keyframe whose median depth changed by more than
+        ``max_depth_change`` (log). Measured on the HoloLens walk before this check: solves that moved a
+        keyframe by tens of degrees threw the map away and every later frame failed."""
+        cfg = self.cfg
+        for k in self.keyframes:
+            if not (bool(torch.isfinite(k.T_wc).all()) and bool(torch.isfinite(k.code).all())):
+                return f"keyframe {k.id}: non-finite pose or code"
+        for a, b in zip(self.keyframes[:-1], self.keyframes[1:]):
+            if a.id not in before.values or b.id not in before.values:
+                continue
+            rel0 = se3_inverse(before.values[a.id][0]) @ before.values[b.id][0]
+            rel1 = se3_inverse(a.T_wc) @ b.T_wc
+            D = se3_inverse(rel0) @ rel1
+            rot = math.degrees(float(so3_log(D[:3, :3]).norm()))
+            shift = float(D[:3, 3].norm())
+            scale = max(float(rel0[:3, 3].norm()), 1e-9)
+            if rot > cfg.max_rotation_change_deg:
+                return f"keyframes {a.id}-{b.id}: relative rotation changed by {rot:.1f} deg"
+            if shift > cfg.max_translation_change * max(scale, cfg.min_translation_scale * depth_before[a.id]):
+                return f"keyframes {a.id}-{b.id}: relative translation changed by {shift:.3f} (baseline {scale:.3f})"
+        for k in self.keyframes:
+            if k.id in depth_before:
+                change = abs(math.log(k.median_depth() / depth_before[k.id]))
+                if change > cfg.max_depth_change:
+                    return f"keyframe {k.id}: median depth changed by a factor {math.exp(change):.2f}"
+        return ""
+
+    def reset(self) -> list[MapKeyframe]:
+        """Freeze every keyframe and empty the window (a new map segment, or a relocalised restart); returns
+        the keyframes that left."""
+        left = list(self.keyframes)
+        for k in left:
+            k.freeze()
+        self.keyframes, self.prior, self._affine, self._pairs, self.matches = [], None, {}, [], {}
+        return left
+
     # ---- marginalisation ------------------------------------------------------------------------------------
-    def marginal_prior(self) -> LinearPrior:
+    def marginal_prior(self) -> LinearPrior | None:
         """The linear prior on the remaining keyframes left by marginalising the oldest one at the current
-        state (module docstring). Blocks by keyframe id; the linearisation point ``x0`` is the current state."""
+        state (module docstring). Blocks by keyframe id; the linearisation point ``x0`` is the current state.
+        None when the leaving keyframe constrained none of the others."""
         cfg: SfMConfig = self.cfg.sfm
         dtype, device = self._tensors()
         kfs = self.keyframes
@@ -274,6 +412,12 @@ class SlidingWindow:
             H_d, g_d = assemble(terms, pairs, state.poses, level, layout)
             H += H_d.to(torch.float64)
             g += g_d.to(torch.float64)
+        for term in self._pair_terms({old_id}):  # matched keypoints of the pairs that involve it
+            term.add_to(H, g, layout, state)
+        if self.cfg.depth_scale_sigma > 0:  # the leaving keyframe's scale prior
+            lvl = self.prior_level
+            level = build_levels([k.keyframe for k in kfs[:1]], [lvl], dtype, device)[lvl]
+            DepthScalePrior(level, [0], self.cfg.depth_scale_sigma).add_to(H, g, layout, state)
         sl = layout.slice(BlockId(CODE, 0))  # the leaving keyframe's code prior 0.5 w |c|^2 (VAE prior)
         H[sl, sl] += cfg.code_prior_weight * torch.eye(C, dtype=torch.float64, device=device)
         g[sl] += cfg.code_prior_weight * state.codes[0].to(torch.float64)
@@ -288,14 +432,17 @@ class SlidingWindow:
         n_marg = sum(s for _, s in marg)
         idx = torch.arange(layout.dim, device=device)
         H_r, b_r = schur_complement(H, g, idx[:n_marg], idx[n_marg:])
+        H_r, b_r = bounded_quadratic(H_r, b_r)
         # Keep only the blocks the prior actually constrains.
         kept, sel, o = [], [], 0
         for b, s in keep:
             block = H_r[o:o + s]
-            if bool((block != 0).any()):
+            if bool((block.abs() > 1e-12 * H_r.abs().max()).any()):
                 kept.append(b)
                 sel.extend(range(o, o + s))
             o += s
+        if not kept:  # nothing of the remaining keyframes was constrained by the leaving one
+            return None
         sel_t = torch.tensor(sel, dtype=torch.long, device=device)
         ids = [kfs[b.index].id for b in kept]
         x0 = [state.block(b).detach().clone() for b in kept]
@@ -315,6 +462,7 @@ class SlidingWindow:
             self.prior = None
         old = self.keyframes.pop(0)
         self._affine = {p: a for p, a in self._affine.items() if old.id not in p}
+        self.matches = {p: m for p, m in self.matches.items() if old.id not in p}
         self._pairs = [p for p in self._pairs if old.id not in p]
         old.freeze()
         return old

@@ -70,3 +70,42 @@ def test_points_behind_the_camera_cost_a_constant_and_give_no_gradient():
     r, J_A, J_B, w = term.jacobians(state)
     assert bool((w[:3] == 0).all()) and bool((w[3:] > 0).all())
     assert torch.isfinite(term.cost(state))
+
+
+def test_decoded_points_jacobians_match_autograd_float64():
+    from codeslam.geometry.proximity import depth_to_prox
+    from codeslam.slam.reprojection import DecodedReprojectionTerm
+
+    term, state = _problem(seed=3, n=25)
+    g = torch.Generator().manual_seed(5)
+    C = 6
+    z = term.xyz_a[:, 2]
+    ray = term.xyz_a / z[:, None]
+    jac = 0.02 * torch.randn(C, len(term), generator=g, dtype=D)
+    dec = DecodedReprojectionTerm(0, 1, term.xyz_a, term.uv_b, term.sigma, term.camera, ray_a=ray,
+                                  prox0=depth_to_prox(z, 1.5), jac=jac, avg_depth=1.5)
+    state = SfMState(state.poses.clone(), 0.3 * torch.randn(2, C, generator=g, dtype=D), state.affine)
+    state.poses[1] = se3_exp(torch.tensor([0.02, 0.01, -0.03, 0.01, 0.02, -0.01], dtype=D)) @ state.poses[1]
+    r, w, blocks = dec.blocks(state)
+    J = dict((b.kind + str(b.index), Jb) for b, Jb in blocks)
+
+    def res(poses, codes):
+        return dec.residuals(SfMState(poses, codes, state.affine))[0]
+
+    for k in (0, 1):
+        def f(xi, k=k):
+            poses = state.poses.clone()
+            poses[k] = se3_exp(xi) @ state.poses[k]
+            return res(poses, state.codes)
+
+        J_auto = torch.autograd.functional.jacobian(f, torch.zeros(6, dtype=D))
+        assert torch.allclose(J[f"pose{k}"], J_auto, atol=1e-9, rtol=1e-7)
+
+    def fc(c):
+        codes = state.codes.clone()
+        codes[0] = c
+        return res(state.poses, codes)
+
+    J_auto = torch.autograd.functional.jacobian(fc, state.codes[0].clone())  # (N, 2, C)
+    assert torch.allclose(J["code0"], J_auto, atol=1e-9, rtol=1e-7), (J["code0"] - J_auto).abs().max()
+    assert float(J_auto.abs().max()) > 1e-3  # the code moves the points
