@@ -253,7 +253,7 @@ def keyframe_figure(kf: dict[str, np.ndarray]):
                        colorbar=dict(title="depth [m]", x=1.0, len=0.45, y=0.75) if unc.size else
                        dict(title="depth [m]", x=1.0)),
         coloraxis2=dict(colorscale="Inferno", cmin=0.0, cmax=float(np.percentile(unc, 99)) if unc.size else 1.0,
-                        colorbar=dict(title="uncertainty", x=1.0, len=0.45, y=0.22)),
+                        colorbar=dict(title="uncertainty<br>b [proximity]", x=1.0, len=0.45, y=0.22)),
     )
     h, w = kf["depth"].shape[1:]
     title = "Keyframes: " + ", ".join(t for t, _, _ in columns)

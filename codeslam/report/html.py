@@ -188,8 +188,9 @@ def report_figures(run: RunFiles) -> list[tuple[str, object, str]]:
     if kf is not None and "depth" in kf and len(kf["depth"]):
         out.append(("fig-keyframes", F.keyframe_figure(kf),
                     "Depth of a few keyframes as decoded from the zero code (the network's single-view prediction) "
-                    "and after the window optimisation, with the uncertainty and the ground truth where the run has "
-                    "them; depths share one colour scale."))
+                    "and after the window optimisation, the network's uncertainty (the Laplace scale b of its "
+                    "proximity prediction) and the ground truth, where the run has them; depths share one colour "
+                    "scale."))
     out.append(("fig-map", F.map_figure(run.cloud, run.trajectory, kf, gt),
                 "The keyframes' depths fused into one point cloud (map.ply, a random subset when large), the camera "
                 "path and the keyframe cameras."))
