@@ -18,6 +18,7 @@ from codeslam.cli import info as _info  # noqa: E402,F401  isort: skip
 from codeslam.cli import evaluate as _evaluate  # noqa: E402,F401  isort: skip
 from codeslam.cli import synth as _synth  # noqa: E402,F401  isort: skip
 from codeslam.cli import train as _train  # noqa: E402,F401  isort: skip
+from codeslam.cli import adapt as _adapt  # noqa: E402,F401  isort: skip
 from codeslam.cli import depth as _depth  # noqa: E402,F401  isort: skip
 from codeslam.cli import sfm as _sfm  # noqa: E402,F401  isort: skip
 from codeslam.cli import slam as _slam  # noqa: E402,F401  isort: skip
