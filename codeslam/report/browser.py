@@ -27,46 +27,56 @@ CHROMIUM_FLAGS = (
     "--disable-sync", "--hide-scrollbars", "--mute-audio",
 )
 #: Virtual time (ms) the page gets to load and draw before Chromium dumps or photographs it.
-RENDER_BUDGET_MS = 20_000
+RENDER_BUDGET_MS = 30_000
 BROWSER_TIMEOUT_S = 120
 PAGE_WIDTH = 1400
 MAX_PAGE_HEIGHT = 16_000
 
 #: Run in the page after load: for every plotly figure, how many traces and SVG layers it has, and for a 3D scene
-#: how many coloured pixels its WebGL canvas holds (read back through plotly's own scene.toImage); the page's
-#: height. Written as JSON into <pre id="codeslam-check">.
+#: how many coloured pixels its WebGL drawing buffer holds (redrawn and read back); the page's height. Written as
+#: JSON into <pre id="codeslam-check">.
 _CHECK_JS = r"""
 <script>
-window.addEventListener("load", async () => {
-  const out = {figures: {}, height: 0};
-  const colourful = async (url) => {
-    const img = new Image(); img.src = url; await img.decode();
-    const c = document.createElement("canvas"); c.width = img.width; c.height = img.height;
-    const ctx = c.getContext("2d"); ctx.drawImage(img, 0, 0);
-    const d = ctx.getImageData(0, 0, c.width, c.height).data; let n = 0;
+(() => {
+  // Synchronous on purpose: Chromium dumps the page when its virtual-time budget ends, and asynchronous work
+  // (image decoding, GPU read-backs through promises) may not have finished by then on a loaded machine.
+  const colourful = (s) => {
+    const gl = s.glplot.gl;
+    s.glplot.redraw();  // draw now, then read the drawing buffer back before it is presented
+    const w = gl.drawingBufferWidth, h = gl.drawingBufferHeight, d = new Uint8Array(w * h * 4);
+    gl.readPixels(0, 0, w, h, gl.RGBA, gl.UNSIGNED_BYTE, d);
+    let n = 0;
     for (let i = 0; i < d.length; i += 4) {
       if (d[i + 3] > 0 && Math.max(d[i], d[i + 1], d[i + 2]) - Math.min(d[i], d[i + 1], d[i + 2]) > 60) n++;
     }
     return n;
   };
-  for (const gd of document.querySelectorAll(".js-plotly-plot")) {
-    const r = {traces: (gd.data || []).length, svg: gd.querySelectorAll(".main-svg").length,
-               canvases: gd.querySelectorAll("canvas").length,
-               webgl_error: /WebGL is not supported/.test(gd.innerText)};
-    const fl = gd._fullLayout || {};
-    if (fl.scene) {
-      try {
-        const s = fl.scene._scene;
-        r.scene_objects = s && s.glplot ? s.glplot.objects.length : 0;
-        r.scene_colour_pixels = s ? await colourful(s.toImage("png")) : 0;
-      } catch (e) { r.scene_error = String(e); }
+  const check = (attempt) => {
+    const plots = [...document.querySelectorAll(".js-plotly-plot")];
+    if (plots.some((gd) => !gd._fullLayout) && attempt < 50) {  // not drawn yet: look again shortly
+      setTimeout(() => check(attempt + 1), 100);
+      return;
     }
-    out.figures[gd.id] = r;
-  }
-  out.height = document.documentElement.scrollHeight;
-  const pre = document.createElement("pre"); pre.id = "codeslam-check"; pre.textContent = JSON.stringify(out);
-  document.body.appendChild(pre);
-});
+    const out = {figures: {}, height: document.documentElement.scrollHeight, attempts: attempt + 1};
+    for (const gd of plots) {
+      const r = {traces: (gd.data || []).length, svg: gd.querySelectorAll(".main-svg").length,
+                 canvases: gd.querySelectorAll("canvas").length,
+                 webgl_error: /WebGL is not supported/.test(gd.innerText)};
+      const fl = gd._fullLayout || {};
+      if (fl.scene) {
+        try {
+          const s = fl.scene._scene;
+          r.scene_objects = s && s.glplot ? s.glplot.objects.length : 0;
+          r.scene_colour_pixels = s && s.glplot ? colourful(s) : 0;
+        } catch (e) { r.scene_error = String(e); }
+      }
+      out.figures[gd.id] = r;
+    }
+    const pre = document.createElement("pre"); pre.id = "codeslam-check"; pre.textContent = JSON.stringify(out);
+    document.body.appendChild(pre);
+  };
+  window.addEventListener("load", () => check(0));
+})();
 </script>
 """
 
