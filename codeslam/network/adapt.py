@@ -7,7 +7,8 @@ per pixel the smallest over the neighbours so that occlusions and pixels leaving
 ``levels`` pyramid levels). Optimised together, by Adam:
 
 * the network's weights (after ``pose_warmup`` steps in which only the other variables move), held near their
-  start by an L2 anchor (``anchor``), so that a short video cannot undo what the network knew;
+  start by an L2 anchor (``anchor``), so that a short video cannot undo what the network knew, and each frame's
+  mean log zero-code depth held at the start network's (``scale_anchor``): the video cannot tell the scale;
 * one code c_i per frame, under the VAE's prior N(0, I) (``code_prior`` * 0.5 |c|² per image, divided by the
   pixel count as in training), the depth being D(I_i, c_i);
 * the zero-code depth D(I_i, 0) is put through the same photometric loss (``zero_code_weight``), so the
@@ -23,8 +24,7 @@ momentum kept moving the motions of the other frames and the photometric error g
 (measured on a generator walk).
 
 Monocular photometric consistency does not fix the scale: depth and translations can grow together. The scale
-stays the network's (the anchor and the code prior hold it), so adaptation improves the shape of the depth, and
-the scale only where given poses carry it.
+stays the network's (the scale anchor holds it), so adaptation improves the shape of the depth, not its scale.
 
 Everything random (the frame order of each step) comes from ``seed`` and the step, so a resumed run repeats the
 interrupted one. The run folder holds ``checkpoint.safetensors`` (network, codes, motions, brightness, Adam
@@ -96,6 +96,12 @@ class AdaptConfig:
     zero_code_weight: float = 1.0
     # Weight of the anchor 0.5 sum (w - w_start)² / (number of weights), per unit of the photometric loss.
     anchor: float = 10.0
+    # Weight of the scale anchor: the squared change of each frame's mean log zero-code depth from the start
+    # network's. Video alone cannot tell the scale; without this the depth of a mostly rotating camera drifted
+    # away (TUM fr1/rpy: median depth ratio 0.98 -> 1.27 in 400 steps).
+    scale_anchor: float = 1.0
+    # Leave out pixels that no motion explains better than the warp (see photometric_loss).
+    automask: bool = True
     # Seed of the frame order.
     seed: int = 0
     # Append a row to log.csv every this many steps; write the checkpoint every this many.
@@ -114,7 +120,7 @@ class AdaptConfig:
         for name in ("lr", "lr_code", "lr_pose", "lr_brightness", "huber"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"adapt.{name} must be positive, got {getattr(self, name)}")
-        for name in ("code_prior", "zero_code_weight", "anchor"):
+        for name in ("code_prior", "zero_code_weight", "anchor", "scale_anchor"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"adapt.{name} must be >= 0, got {getattr(self, name)}")
 
@@ -160,14 +166,17 @@ def _huber(r: torch.Tensor, k: float) -> torch.Tensor:
 
 def photometric_loss(
     gray_t: torch.Tensor, depth_t: torch.Tensor, gray_s: torch.Tensor, valid_s: torch.Tensor,
-    T_st: torch.Tensor, camera: PinholeCamera, huber: float,
+    T_st: torch.Tensor, camera: PinholeCamera, huber: float, automask: bool = False,
 ) -> torch.Tensor:
     """Mean over target pixels of the smallest Huber photometric error over the source frames.
 
     gray_t (B, 1, h, w) target intensities, depth_t (B, 1, h, w) its depth, gray_s (B, S, h, w) the S source
     frames' intensities (after their brightness correction), valid_s (B, S, h, w) where the sources hold real
     pixels, T_st (B, S, 4, 4) target-to-source transforms, camera: the pinhole camera of this level.
-    A pixel counts where at least one source sees it (inside, valid, in front). Returns a scalar.
+    A pixel counts where at least one source sees it (inside, valid, in front) and, with ``automask``, where the
+    warp explains it better than no motion at all does (Godard et al.'s auto-masking, Monodepth2, ICCV 2019:
+    pixels that look the same in both frames - a camera that barely moved, textureless walls - say nothing about
+    depth, and left in they pull it towards infinity, where any warp is no motion). Returns a scalar.
     """
     B, S, h, w = gray_s.shape
     uv = pixel_grid(h, w, depth_t.dtype, depth_t.device).reshape(1, -1, 2)  # (1, P, 2)
@@ -184,6 +193,9 @@ def photometric_loss(
     err = torch.where(seen, err, torch.full_like(err, float("inf")))
     best = err.min(dim=1).values  # (B, P) the best source per pixel
     counted = torch.isfinite(best)
+    if automask:
+        still = _huber(gray_t.reshape(B, 1, -1) - gray_s.reshape(B, S, -1), huber).min(dim=1).values  # (B, P)
+        counted = counted & (best < still)
     return torch.where(counted, best, torch.zeros_like(best)).sum() / counted.sum().clamp_min(1)
 
 
@@ -295,7 +307,19 @@ def adapt(
     def save(step: int) -> None:
         _save(ckpt, model, opt, codes, delta, bright, start, step, elapsed_before + time.perf_counter() - t0, cfg)
 
-    frozen_prox = None  # the frozen network's zero-code proximity of every frame, shared by the warm-up steps
+    with torch.no_grad():  # the start network's zero-code proximity of every frame: warm-up depth, scale anchor
+        parts = [model.decode(f, f[0].new_zeros(f[0].shape[0], model.code_size)) for f in
+                 (model.image_features(net_in[a:a + 16]) for a in range(0, N, 16))]
+        start_prox = [torch.cat(x) for x in zip(*parts, strict=True)]  # levels x (N, 1, h, w)
+    if done > 0:  # resumed: the warm-up depth and the scale anchor are the start weights', not the checkpoint's
+        current = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        model.load_state_dict(start)
+        with torch.no_grad():
+            parts = [model.decode(f, f[0].new_zeros(f[0].shape[0], model.code_size)) for f in
+                     (model.image_features(net_in[a:a + 16]) for a in range(0, N, 16))]
+            start_prox = [torch.cat(x) for x in zip(*parts, strict=True)]
+        model.load_state_dict(current)
+    start_log_depth = torch.log(prox_to_depth(start_prox[0], model.avg_depth)).mean(dim=(1, 2, 3))  # (N,)
     for step in range(done, end):
         warm = step < cfg.pose_warmup
         for p in net_params:
@@ -314,15 +338,9 @@ def adapt(
         T_wc = chain_poses(T0, delta.clone().index_fill(0, torch.tensor([0], device=dev), 0.0))  # (N, 4, 4)
         T_st = se3_inverse(T_wc[src_d]) @ T_wc[tgt_d][:, None]  # (B, S, 4, 4) target -> source
         B = len(tgt)
-        if warm:  # the frozen network's zero-code depth of every frame, decoded once for the whole warm-up
-            if frozen_prox is None:
-                with torch.no_grad():
-                    parts = [model.decode(f, f[0].new_zeros(f[0].shape[0], model.code_size)) for f in
-                             (model.image_features(net_in[a:a + 16]) for a in range(0, N, 16))]
-                    frozen_prox = [torch.cat(x) for x in zip(*parts, strict=True)]  # levels x (N, 1, h, w)
-            prox = [[x[tgt_d]] for x in frozen_prox]  # per level: [zero code]
+        if warm:  # the start network's zero-code depth, decoded once
+            prox = [[x[tgt_d]] for x in start_prox]  # per level: [zero code]
         else:
-            frozen_prox = None
             feats = model.image_features(net_in[tgt_d])
             both = model.decode([torch.cat([f, f]) for f in feats],
                                 torch.cat([codes[tgt_d], torch.zeros_like(codes[tgt_d])]))  # 2B decodes
@@ -337,14 +355,18 @@ def adapt(
             v_s = valid_pyr[lvl][src_d][:, :, 0]
             for k, p_lvl in enumerate(prox[lvl]):
                 depth = prox_to_depth(p_lvl, model.avg_depth)  # (B, 1, h, w)
-                photo[k] = photo[k] + photometric_loss(g_t, depth, g_s, v_s, T_st, cams[lvl], cfg.huber) / levels
+                photo[k] = photo[k] + photometric_loss(g_t, depth, g_s, v_s, T_st, cams[lvl], cfg.huber,
+                                                       cfg.automask) / levels
         if warm:
             photo[1] = photo[0]  # one depth (the zero code's) in the warm-up, counted once
         prior = cfg.code_prior * 0.5 * codes[tgt_d].square().sum(-1).mean() / (H * W)
         anchor = torch.zeros((), device=dev)
+        if not warm and cfg.scale_anchor > 0:
+            log_depth = torch.log(prox_to_depth(prox[0][1], model.avg_depth)).mean(dim=(1, 2, 3))  # (B,)
+            anchor = anchor + cfg.scale_anchor * (log_depth - start_log_depth[tgt_d]).square().mean()
         if not warm and cfg.anchor > 0:
-            anchor = cfg.anchor * 0.5 * sum(((p - start[n].to(p)) ** 2).sum() for n, p in model.named_parameters()
-                                           if p.requires_grad) / n_weights
+            moved = sum(((p - start[n].to(p)) ** 2).sum() for n, p in model.named_parameters() if p.requires_grad)
+            anchor = anchor + cfg.anchor * 0.5 * moved / n_weights
         loss = (photo[0] if warm else photo[0] + cfg.zero_code_weight * photo[1]) + prior + anchor
         opt.zero_grad(set_to_none=True)
         loss.backward()

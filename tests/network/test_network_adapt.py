@@ -109,3 +109,15 @@ def test_cli_adapt_writes_weights_and_poses(tmp_path, walk, tiny_config, capsys)
     assert "--resume" in capsys.readouterr().err
     assert main([*args[:-1], "-q", "--resume"]) == 0
     assert main(["adapt", args[1], "--out", str(tmp_path / "x.safetensors"), "--frames", "0:2", "-q"]) == 2
+
+
+def test_automask_ignores_what_no_motion_explains(walk_96):
+    images, depth, _ = _frames(walk_96)
+    gray = to_network_image(images, 1)
+    same = gray[3:4, :, None].expand(1, 2, 1, 72, 96)[:, :, 0]  # both "sources" are the target itself
+    valid = torch.ones(1, 2, 72, 96, dtype=torch.bool)
+    moved = se3_exp(torch.tensor([[0.1, 0.0, 0.0, 0.0, 0.05, 0.0]])).expand(1, 2, 4, 4)  # a wrong motion
+    cam = canonical_camera(96, 72)
+    plain = float(photometric_loss(gray[3:4], depth[3:4, None], same, valid, moved, cam, 0.05))
+    masked = float(photometric_loss(gray[3:4], depth[3:4, None], same, valid, moved, cam, 0.05, automask=True))
+    assert plain > 1e-4 and masked == 0.0  # no pixel is explained better by the wrong motion than by none
