@@ -39,6 +39,8 @@ def synth_command(
     ),
     noise: float = typer.Option(0.0, "--noise", help="Std of Gaussian sensor noise on [0, 1] colours."),
     blur: float = typer.Option(0.0, "--blur", help="Std (pixels) of a Gaussian sensor blur."),
+    video: bool = typer.Option(False, "--video", help="Sequences: also encode each as OUT/scene_NNN.mp4 (at "
+                               "--fps), to try the video path: codeslam slam OUT/scene_000.mp4 --fov 60."),
     json_out: JsonOut = None,
     quiet: Quiet = False,
 ) -> None:
@@ -73,6 +75,9 @@ def synth_command(
         supersample = 1 if train else 2
     if data_version != 1 and not train:
         raise ConfigError("--data-version chooses the rooms and views of --train shards")
+    if video and (train or w % 2 or h % 2):
+        raise ConfigError("--video encodes sequences (not --train shards) and needs an even width and height, "
+                          f"got --size {w}x{h}")
     from codeslam.synth.shards import V2_MAX_DEPTH
 
     max_depth = V2_MAX_DEPTH if data_version == 2 else RenderConfig.max_depth
@@ -97,5 +102,18 @@ def synth_command(
         path = f"'{motion}' paths at {fps:g} frames/s" if motion else f"the default path at {fps:g} frames/s"
         console.print(f"{scenes} sequences of {frames} frames ({w}x{h}, {path}) under {out} in "
                       f"{summary['seconds']:.1f} s ({summary['fps']:.1f} frames/s rendered)", highlight=False)
+        if video:
+            summary["videos"] = [str(_encode_sequence(Path(p), fps)) for p in summary["paths"]]
+            console.print(f"videos: {', '.join(summary['videos'])}", highlight=False)
     if json_out is not None:
         write_json(json_out, summary)
+
+
+def _encode_sequence(folder: Path, fps: float) -> Path:
+    """Encode a rendered sequence's colour frames as ``FOLDER.mp4`` beside it (no depth, no poses: what a phone
+    gives)."""
+    from codeslam.data.registry import open_dataset
+    from codeslam.data.video import write_video
+
+    seq = open_dataset(folder)
+    return write_video(folder.with_suffix(".mp4"), (seq[i].image for i in range(len(seq))), fps=fps)

@@ -1,6 +1,7 @@
-"""`codeslam slam video.mp4`: a short video rendered by the generator and encoded with PyAV runs through SLAM to a
-trajectory, a map and a report without ground truth, the field-of-view guess stated; bad video input is one line
-and leaves no output folder. A tiny random network keeps it fast (the accuracy is the demo test's business)."""
+"""`codeslam slam video.mp4`: a short video rendered by the generator and encoded with PyAV (`codeslam synth
+--video`) runs through SLAM to a trajectory, a map and a report without ground truth, the field-of-view guess stated;
+bad video input is one line and leaves no output folder. A tiny random network keeps it fast (the accuracy is the
+demo test's business)."""
 
 from __future__ import annotations
 
@@ -9,32 +10,37 @@ import json
 import numpy as np
 import pytest
 import torch
-from PIL import Image
 
 from codeslam.cli import main
+from codeslam.data.registry import open_dataset
 from codeslam.data.trajectory import read_tum
-from codeslam.data.video import write_video
-from codeslam.geometry.camera import canonical_camera
+from codeslam.data.video import VideoSequence
 from codeslam.network.config import NetworkConfig
 from codeslam.network.model import CodeNetwork
 from codeslam.network.weights import save_weights
 from codeslam.recon.ply import read_ply
-from codeslam.synth.generate import generate_sequence
 
 FRAMES, FPS = 16, 30
 
 
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory):
-    """(a 16-frame MP4 of a generator room at 30 frames/s, tiny network weights, the generator's folder)."""
+    """(a 16-frame MP4 of a generator room at 30 frames/s, tiny network weights, the generator's folder), the video
+    rendered and encoded by `codeslam synth --video`."""
     root = tmp_path_factory.mktemp("clip")
-    generate_sequence(root / "seq", seed=3, frames=FRAMES, camera=canonical_camera(128, 96))
-    images = [np.asarray(Image.open(p).convert("RGB")) for p in sorted((root / "seq" / "rgb").glob("*.png"))]
+    assert main(["synth", str(root / "seq"), "--frames", str(FRAMES), "--seed", "3", "--size", "128x96", "--video",
+                 "-q"]) == 0
+    video, folder = root / "seq" / "scene_000.mp4", root / "seq" / "scene_000"
+    frames = VideoSequence(video, fov=60)
+    assert len(frames) == FRAMES and frames.video_fps == FPS
+    for i in (0, FRAMES - 1):  # the video holds the rendered frames
+        rendered = open_dataset(folder)[i].image
+        assert float((frames[i].image - rendered).abs().mean()) < 0.03
     torch.manual_seed(0)
     net = CodeNetwork(NetworkConfig(code_size=8, image_channels=(4, 8, 8, 8), depth_channels=(4, 8, 8, 8),
                                     full_res_channels=4, bottleneck_channels=4, fc_units=16))
     save_weights(root / "tiny.safetensors", net)
-    return write_video(root / "room.mp4", images, fps=FPS), root / "tiny.safetensors", root / "seq"
+    return video, root / "tiny.safetensors", folder
 
 
 def test_slam_on_a_video_ends_with_trajectory_map_and_report(clip, tmp_path, capsys):
@@ -71,6 +77,7 @@ def test_bad_video_input_is_one_line_and_writes_nothing(clip, tmp_path, capsys):
     out = tmp_path / "out"
     run = ["--out", out, "--weights", weights, "-q"]
     _one_line_error(capsys, ["slam", tmp_path / "missing.mp4", *run], "not found")
+    _one_line_error(capsys, ["synth", tmp_path / "odd", "--size", "65x48", "--video"], "even width and height")
     broken = tmp_path / "broken.mp4"
     broken.write_bytes(b"\x00\x00\x00\x18ftypmp42 but nothing else")
     _one_line_error(capsys, ["slam", broken, *run], "cannot read video")
