@@ -96,9 +96,11 @@ def synth_command(
     else:
         from codeslam.synth.generate import generate_sequences
 
-        with progress_bar("scenes", scenes, quiet) as update:
+        with progress_bar("synth", scenes * frames, quiet) as update:
             summary = generate_sequences(out, scenes, frames, seed=seed, camera=camera, config=config, fps=fps,
-                                         workers=workers, motion=motion, progress=lambda d, n: update(d))
+                                         workers=workers, motion=motion,
+                                         progress=lambda d, n: update(d, f"scene {min(d // frames, scenes - 1) + 1}"
+                                                                         f"/{scenes}"))
         path = f"'{motion}' paths at {fps:g} frames/s" if motion else f"the default path at {fps:g} frames/s"
         console.print(f"{scenes} sequences of {frames} frames ({w}x{h}, {path}) under {out} in "
                       f"{summary['seconds']:.1f} s ({summary['fps']:.1f} frames/s rendered)", highlight=False)

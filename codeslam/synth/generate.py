@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -50,12 +51,13 @@ def generate_sequence(
     config: RenderConfig = RenderConfig(),
     fps: float = DEFAULT_FPS,
     motion: str | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> dict:
     """Build the room of ``seed``, move a camera through it and write the sequence to ``out_dir``.
 
     ``motion`` names a preset of :mod:`codeslam.synth.motion` (``handheld``, ``walk``, ``fast-turn``: a person
     carrying the camera, in a room of the preset's size); None keeps the default slow path (and every seed's
-    bytes as before presets existed).
+    bytes as before presets existed). ``progress(frames_written)`` is called after every batch of frames.
     Returns a summary: path, frames, seconds, primitives, path_length (metres), motion.
     """
     if frames < 1:
@@ -80,6 +82,8 @@ def generate_sequence(
         for j in range(img.shape[0]):
             write_rgb_png(out_dir / "rgb" / f"{names[a + j]}.png", img[j])
             write_depth_png(out_dir / "depth" / f"{names[a + j]}.png", dep[j], DEPTH_FACTOR)
+        if progress:
+            progress(a + img.shape[0])
     for kind in ("rgb", "depth"):
         with atomic_write(out_dir / f"{kind}.txt") as f:
             f.write(f"# {kind} maps\n# synthetic sequence (codeslam synth), seed {seed}\n# timestamp filename\n")
@@ -117,8 +121,9 @@ def generate_sequences(
 ) -> dict:
     """Write ``scenes`` sequences ``out_dir/scene_000`` ... (``workers > 1``: that many processes, one
     sequence each at a time, one torch thread each; the output does not depend on it); ``motion`` and ``fps``
-    as in :func:`generate_sequence`. Returns a summary dict (scenes, frames, size, seed, motion,
-    frame_rate, seconds, fps (frames rendered per second), paths)."""
+    as in :func:`generate_sequence`. ``progress(frames_done, frames_total)`` counts frames over all sequences
+    (after every batch of frames with one worker, after every sequence with several). Returns a summary dict
+    (scenes, frames, size, seed, motion, frame_rate, seconds, fps (frames rendered per second), paths)."""
     if scenes < 1:
         raise CodeSLAMError(f"--scenes must be at least 1, got {scenes}")
     if frames < 1:
@@ -133,11 +138,12 @@ def generate_sequences(
     jobs = [(Path(out_dir) / f"scene_{i:03d}", scene_seed(seed, i), frames, camera, config, fps, motion)
             for i in range(scenes)]
     paths = []
+    total = scenes * frames
     if workers <= 1:
         for i, job in enumerate(jobs):
-            paths.append(generate_sequence(*job)["path"])
-            if progress:
-                progress(i + 1, scenes)
+            done = i * frames
+            paths.append(generate_sequence(*job, progress=progress and (lambda n, d=done: progress(d + n, total)))
+                         ["path"])
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
@@ -149,7 +155,7 @@ def generate_sequences(
             for i, info in enumerate(pool.map(_generate_job, jobs)):
                 paths.append(info["path"])
                 if progress:
-                    progress(i + 1, scenes)
+                    progress((i + 1) * frames, total)
     seconds = time.perf_counter() - t0
     return {
         "scenes": scenes,

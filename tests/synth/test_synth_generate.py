@@ -119,3 +119,14 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path: Path):
     differing = [k for k in da if da[k] != dc.get(k)]
     assert any(k.startswith("scene_000/rgb/") for k in differing)
     assert "scene_000/groundtruth.txt" in differing
+
+
+def test_progress_counts_frames_over_all_sequences(tmp_path):
+    """The progress callback counts frames (so a bar can show frames per second), batch by batch, to the total."""
+    calls = []
+    generate_sequences(tmp_path, scenes=2, frames=10, seed=1, camera=canonical_camera(16, 12),
+                       progress=lambda done, total: calls.append((done, total)))
+    from codeslam.synth.generate import FRAME_BATCH
+
+    per_scene = [min(n, 10) for n in range(FRAME_BATCH, 10 + FRAME_BATCH, FRAME_BATCH)]  # after each batch
+    assert calls == [(d, 20) for d in per_scene] + [(10 + d, 20) for d in per_scene]
