@@ -10,7 +10,11 @@ Sets (name=PATH[@FRAMES], FRAMES in the ``--frames`` grammar; shard folders take
 * ``tum`` and ``hololens``: ``../shared/data`` frames 0:180:4 (issue 13's measurement), never trained on;
 * ``cabinet``, ``realsense``, ``redwood``, ``office``: the validation halves of ``../shared/train_data``
   (``scripts/split_real_rgbd.py``);
-* ``gen_v1``, ``gen_v2``: held-out generator shards of data versions 1 and 2 (seeds 4001 and 4000).
+* ``gen_v1``, ``gen_v2``, ``gen_v3``: held-out generator shards of data versions 1, 2 and 3 (seeds 4001, 4000
+  and 4002).
+
+Also reported: ``si_rmse``, the proximity RMSE after scaling every frame's predicted depth by its median ratio to
+the ground truth (the error of the depth's shape alone; what self-supervised adaptation can improve).
 
     python scripts/depth_prior_eval.py --weights W [--weights W2 ...] [--set name=PATH[@FRAMES] ...]
         [--json OUT.json] [--markdown OUT.md] [--threads 1]
@@ -36,6 +40,7 @@ DEFAULT_SETS = {
     "office": "/work/train_data/real_split/val/tum_fr3_office_single_open3d",
     "gen_v1": "/work/train_data/val128_v1",
     "gen_v2": "/work/train_data/val128_v2",
+    "gen_v3": "/work/train_data/val128_v3",
 }
 
 
@@ -44,7 +49,7 @@ class PriorStats:
     predicted / true depth ratios (kept for the median)."""
 
     def __init__(self) -> None:
-        self.n, self.se, self.s1, self.s2 = 0, 0.0, 0.0, 0.0
+        self.n, self.se, self.s1, self.s2, self.se_si = 0, 0.0, 0.0, 0.0, 0.0
         self.ratios: list[torch.Tensor] = []
 
     def add(self, prox_pred: torch.Tensor, depth_gt: torch.Tensor, a: float) -> None:
@@ -57,7 +62,14 @@ class PriorStats:
         self.s1 += float(g.sum())
         self.s2 += float(g.square().sum())
         d_pred = a * (1.0 - p.clamp(1e-6, 1 - 1e-6)) / p.clamp(1e-6, 1 - 1e-6)  # Eq. 4 inverted
-        self.ratios.append((d_pred / depth_gt[valid].double()).float())
+        ratio = d_pred / depth_gt[valid].double()
+        self.ratios.append(ratio.float())
+        # per frame: the predicted depth scaled by its median ratio to the ground truth
+        frame = torch.arange(valid.shape[0])[:, None, None].expand_as(valid)[valid]
+        for f in frame.unique():
+            sel = frame == f
+            d_si = d_pred[sel] / ratio[sel].median()
+            self.se_si += float((a / (d_si + a) - g[sel]).square().sum())
 
     def result(self) -> dict:
         if self.n == 0:
@@ -68,7 +80,7 @@ class PriorStats:
         if r.numel() > 4_000_000:
             r = r[torch.randperm(r.numel(), generator=torch.Generator().manual_seed(0))[:4_000_000]]
         return {"pixels": self.n, "zero_rmse": rmse, "const_rmse": const, "ratio": rmse / const,
-                "median_depth_ratio": float(r.median())}
+                "median_depth_ratio": float(r.median()), "si_rmse": math.sqrt(self.se_si / self.n)}
 
 
 def _dataset_frames(model, path: str, frames: str | None):
@@ -140,8 +152,8 @@ def main() -> None:
     if args.set:
         sets = dict(s.split("=", 1) for s in args.set)
     results: dict = {}
-    rows = ["| weights | set | frames | zero-code RMSE | best constant | ratio | median depth ratio |",
-            "|---|---|---|---|---|---|---|"]
+    rows = ["| weights | set | frames | zero-code RMSE | best constant | ratio | median depth ratio | scaled RMSE |",
+            "|---|---|---|---|---|---|---|---|"]
     for w in args.weights or ["default"]:
         model = DepthModel.load(None if w == "default" else w)
         results[w] = {}
@@ -156,7 +168,8 @@ def main() -> None:
             results[w][name] = r
             row = (f"| {Path(w).name if w != 'default' else 'shipped'} | {name} | {r['frames']} | "
                    f"{r.get('zero_rmse', float('nan')):.4f} | {r.get('const_rmse', float('nan')):.4f} | "
-                   f"{r.get('ratio', float('nan')):.2f} | {r.get('median_depth_ratio', float('nan')):.2f} |")
+                   f"{r.get('ratio', float('nan')):.2f} | {r.get('median_depth_ratio', float('nan')):.2f} | "
+                   f"{r.get('si_rmse', float('nan')):.4f} |")
             rows.append(row)
             print(row, flush=True)
     if args.json:

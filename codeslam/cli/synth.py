@@ -32,7 +32,9 @@ def synth_command(
     shard_size: int = typer.Option(256, "--shard-size", help="--train: views per shard file."),
     data_version: int = typer.Option(1, "--data-version", help="--train: 1 = furnished rooms of 3-7 m seen from "
                                      "close by; 2 = also large rooms, open-plan, corridors, ceilings to 4 m and half "
-                                     "the views along the room from standing or sitting height (depth to 13 m)."),
+                                     "the views along the room from standing or sitting height (depth to 13 m); "
+                                     "3 = version 2's rooms, views along the room and at things from a person's "
+                                     "height."),
     workers: int = typer.Option(1, "--workers", help="Worker processes (shards or sequences in parallel)."),
     supersample: int | None = typer.Option(
         None, "--supersample", help="Anti-aliasing: s x s colour rays per pixel (default: 2 sequences, 1 --train)."
@@ -80,7 +82,7 @@ def synth_command(
                           f"got --size {w}x{h}")
     from codeslam.synth.shards import V2_MAX_DEPTH
 
-    max_depth = V2_MAX_DEPTH if data_version == 2 else RenderConfig.max_depth
+    max_depth = V2_MAX_DEPTH if data_version >= 2 else RenderConfig.max_depth
     config = RenderConfig(supersample=supersample, noise_std=noise, blur_sigma=blur, max_depth=max_depth)
     console = Console(stderr=True)
     if train:

@@ -151,13 +151,9 @@ ALONG_MIN_DISTANCE = 2.5
 ALONG_PITCH = (math.radians(-30.0), math.radians(15.0))
 
 
-def random_views_v2(scene: Scene, n: int, rng: np.random.Generator, clearance: float = 0.25) -> torch.Tensor:
-    """n camera poses (n, 4, 4) float64 ``T_wc`` of data version 2: ALONG_ROOM_SHARE of them as a person sees a
-    room, from standing (1.4-1.8 m) or sitting (1.0-1.3 m) height looking along it at a point at least
-    2.5 m away (pitch -30 to +15 deg, a little roll), the rest :func:`random_views`' close-ups of furniture,
-    walls and the floor. The order of the two kinds is shuffled."""
+def _along_room_views(scene: Scene, n_along: int, rng: np.random.Generator, clearance: float = 0.25) -> list:
+    """n_along poses looking along the room from standing or sitting height (see :func:`random_views_v2`)."""
     W, D, H = scene.size
-    n_along = int(rng.binomial(n, ALONG_ROOM_SHARE))
     poses = []
     while len(poses) < n_along:
         m = 4 * (n_along - len(poses)) + 16
@@ -178,9 +174,91 @@ def random_views_v2(scene: Scene, n: int, rng: np.random.Generator, clearance: f
             roll = float(np.clip(rng.normal(0.0, math.radians(3.0)), -0.2, 0.2))
             look = _direction(np.array(yaw[i]), np.array(pitch[i]))
             poses.append(look_at(torch.from_numpy(pos[i]), torch.from_numpy(pos[i] + look), roll))
+    return poses
+
+
+def random_views_v2(scene: Scene, n: int, rng: np.random.Generator, clearance: float = 0.25) -> torch.Tensor:
+    """n camera poses (n, 4, 4) float64 ``T_wc`` of data version 2: ALONG_ROOM_SHARE of them as a person sees a
+    room, from standing (1.4-1.8 m) or sitting (1.0-1.3 m) height looking along it at a point at least
+    2.5 m away (pitch -30 to +15 deg, a little roll), the rest :func:`random_views`' close-ups of furniture,
+    walls and the floor. The order of the two kinds is shuffled."""
+    n_along = int(rng.binomial(n, ALONG_ROOM_SHARE))
+    poses = _along_room_views(scene, n_along, rng, clearance)
     out = poses + ([] if n == n_along else list(random_views(scene, n - n_along, rng, clearance=0.15)))
     order = rng.permutation(n)
     return torch.stack([out[i] for i in order])
+
+
+#: Data version 3 views: shares looking along the room (as version 2) and looking at things (furniture, table and
+#: shelf tops, walls, the floor) from a person's height; the rest are version 1's close-ups. Horizontal distance
+#: (metres) from a person to what they look at, and the pitch range (radians) of those views.
+V3_ALONG_SHARE = 0.4
+V3_LOOK_AT_SHARE = 0.45
+LOOK_AT_DISTANCE = (0.7, 4.0)
+LOOK_AT_PITCH = (math.radians(-70.0), math.radians(20.0))
+
+
+def _person_height(rng: np.random.Generator, m: int) -> np.ndarray:
+    """(m,) camera heights of people standing (1.4-1.8 m) or, SITTING_SHARE of them, sitting (1.0-1.3 m)."""
+    sit = rng.random(m) < SITTING_SHARE
+    return np.where(sit, rng.uniform(*SITTING_HEIGHT, m), rng.uniform(*STANDING_HEIGHT, m))
+
+
+def look_at_views(scene: Scene, n: int, rng: np.random.Generator, clearance: float = 0.25) -> torch.Tensor:
+    """n poses (n, 4, 4) of a person looking at something from standing or sitting height: a piece of furniture
+    or clutter, a table or shelf top, a wall point or the floor, 0.7-4 m away horizontally, so tables are seen
+    from above at the distances people keep (where :func:`random_views` puts the camera 0.35-1.3 m from a table
+    top, looking down)."""
+    W, D, H = scene.size
+    things = _interest_points(scene)
+    poses = []
+    while len(poses) < n:
+        m = 4 * (n - len(poses)) + 16
+        kind = rng.choice(3, size=m, p=[0.6, 0.25, 0.15])  # thing, wall, floor
+        target = np.empty((m, 3))
+        pick = rng.integers(0, max(len(things), 1), m)
+        wall = rng.integers(0, 4, m)
+        s_ = rng.random(m)
+        for i in range(m):
+            if kind[i] == 0 and len(things):
+                target[i] = things[pick[i]]
+            elif kind[i] <= 1:
+                x = s_[i] * W if wall[i] < 2 else (0.0 if wall[i] == 2 else W)
+                y = s_[i] * D if wall[i] >= 2 else (0.0 if wall[i] == 0 else D)
+                target[i] = (x, y, rng.uniform(0.3, min(2.2, H - 0.2)))
+            else:
+                target[i] = (rng.uniform(0, W), rng.uniform(0, D), 0.0)
+        dist = rng.uniform(*LOOK_AT_DISTANCE, m)
+        azim = rng.uniform(-math.pi, math.pi, m)
+        z = np.minimum(_person_height(rng, m), H - clearance - 0.05)
+        pos = np.stack([target[:, 0] + dist * np.cos(azim), target[:, 1] + dist * np.sin(azim), z], -1)
+        v = target - pos
+        pitch = np.arctan2(v[:, 2], np.linalg.norm(v[:, :2], axis=-1)) + rng.normal(0.0, math.radians(4.0), m)
+        yaw = np.arctan2(v[:, 1], v[:, 0]) + rng.normal(0.0, math.radians(6.0), m)
+        inside = (pos[:, 0] > clearance) & (pos[:, 0] < W - clearance) & (pos[:, 1] > clearance) \
+            & (pos[:, 1] < D - clearance)
+        ok = inside & (pitch >= LOOK_AT_PITCH[0]) & (pitch <= LOOK_AT_PITCH[1])
+        ok[ok] = _free(scene, pos[ok], clearance)
+        for i in np.nonzero(ok)[0]:
+            if len(poses) == n:
+                break
+            roll = float(np.clip(rng.normal(0.0, math.radians(3.0)), -0.2, 0.2))
+            look = _direction(np.array(yaw[i]), np.array(pitch[i]))
+            poses.append(look_at(torch.from_numpy(pos[i]), torch.from_numpy(pos[i] + look), roll))
+    return torch.stack(poses) if poses else torch.zeros(0, 4, 4, dtype=torch.float64)
+
+
+def random_views_v3(scene: Scene, n: int, rng: np.random.Generator) -> torch.Tensor:
+    """n poses (n, 4, 4) of data version 3, shuffled: V3_ALONG_SHARE along the room (:func:`random_views_v2`'s
+    kind), V3_LOOK_AT_SHARE looking at things from a person's height (:func:`look_at_views`), the rest
+    :func:`random_views`' close-ups."""
+    counts = rng.multinomial(n, [V3_ALONG_SHARE, V3_LOOK_AT_SHARE, 1 - V3_ALONG_SHARE - V3_LOOK_AT_SHARE])
+    none = torch.zeros(0, 4, 4, dtype=torch.float64)
+    along = _along_room_views(scene, int(counts[0]), rng)
+    parts = [torch.stack(along) if along else none, look_at_views(scene, int(counts[1]), rng),
+             random_views(scene, int(counts[2]), rng, clearance=0.15) if counts[2] else none]
+    out = torch.cat(parts)
+    return out[torch.from_numpy(rng.permutation(n))]
 
 
 # ------------------------------------------------------------------------------------------- trajectories

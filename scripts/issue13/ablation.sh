@@ -3,6 +3,8 @@
 # scripts/depth_prior_eval.py. Data made by (see codeslam/weights/MODEL_CARD.md):
 #   codeslam synth /work/train_data/synth128_v2 --train --views 16384 --views-per-scene 16 --shard-size 512 \
 #       --size 128x96 --seed 3000 --data-version 2 --workers 2
+#   codeslam synth /work/train_data/synth128_v3 --train --views 8192 --views-per-scene 16 --shard-size 512 \
+#       --size 128x96 --seed 5000 --data-version 3 --workers 2
 #   codeslam synth /work/train_data/synth128_v1 --train --views 8192 --views-per-scene 16 --shard-size 512 \
 #       --size 128x96 --seed 1000 --workers 2     # the first half of the shipped weights' own training data
 #   python scripts/split_real_rgbd.py             # ../shared/train_data -> real_split/{train,val}
@@ -19,9 +21,13 @@ for name in "$@"; do
     v2fx) data="$D/synth128_v2"; cfg=scripts/issue13/effects.yaml ;;
     v2fxreal) data="$D/synth128_v2 $REAL"; cfg=scripts/issue13/effects.yaml ;;
     v1fx) data="$D/synth128_v1"; cfg=scripts/issue13/effects.yaml ;;
+    v3) data="$D/synth128_v3"; cfg=scripts/issue13/finetune.yaml ;;
+    v3fx) data="$D/synth128_v3"; cfg=scripts/issue13/effects.yaml ;;
+    v3fxreal) data="$D/synth128_v3 $REAL"; cfg=scripts/issue13/effects.yaml ;;
+    eval-*) data=""; name=${name#eval-} ;;
     *) echo "unknown run $name"; exit 2 ;;
   esac
-  python3 -m codeslam train --data $data --out "$RUNS/$name" --config $cfg --threads 1 --no-progress --resume
+  [ -n "$data" ] && python3 -m codeslam train --data $data --out "$RUNS/$name" --config $cfg --threads 1 --no-progress --resume
   python3 scripts/depth_prior_eval.py --weights "$RUNS/$name/weights.safetensors" --json "$RUNS/$name/prior_eval.json" \
       --markdown "$RUNS/$name/prior_eval.md" --threads 1
 done

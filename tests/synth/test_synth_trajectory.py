@@ -87,3 +87,21 @@ def test_version_2_views_look_along_the_room_from_standing_and_sitting_height():
     assert 0.4 < float(level.float().mean()) < 0.95  # about half look along the room, the rest are close-ups
     again = random_views_v2(scene, 60, np.random.default_rng(3))
     assert torch.equal(T, again)
+
+
+def test_version_3_views_see_things_from_a_persons_height():
+    from codeslam.synth.scene import build_scene_v2
+    from codeslam.synth.trajectory import look_at_views, random_views_v3
+
+    scene = build_scene_v2(1)
+    T = look_at_views(scene, 40, np.random.default_rng(0))
+    pos = T[:, :3, 3].float()
+    assert float(scene.free_distance(pos).min()) >= 0.25 - 1e-6
+    assert float(pos[:, 2].min()) >= 0.99 and float(pos[:, 2].max()) <= 1.81  # sitting or standing
+    pitch = torch.asin(T[:, 2, 2])
+    assert float(pitch.min()) >= math.radians(-71.0) and float(pitch.max()) <= math.radians(21.0)
+    assert float((pitch < math.radians(-20.0)).float().mean()) > 0.2  # many look down at tables and floors
+    V = random_views_v3(scene, 50, np.random.default_rng(1))
+    assert V.shape == (50, 4, 4) and torch.equal(V, random_views_v3(scene, 50, np.random.default_rng(1)))
+    person = ((V[:, 2, 3] >= 0.99) & (V[:, 2, 3] <= 1.81)).float().mean()
+    assert float(person) > 0.75  # 85% of the views are from a person's height (the close-ups vary)
