@@ -160,6 +160,18 @@ def rotation_angle(R: np.ndarray) -> np.ndarray:
     return so3_log(R64).norm(dim=-1).numpy()
 
 
+def orientation_errors_aligned(R_est: np.ndarray, R_ref: np.ndarray) -> np.ndarray:
+    """(K,) angles (radians) between the reference orientations ``R_ref`` (K, 3, 3) and the estimated ones
+    ``R_est`` (K, 3, 3) after the best rotation of the estimate's world frame: ``R* = argmin sum |R* R_est_k -
+    R_ref_k|_F^2`` (the chordal mean, the closest rotation to ``sum R_ref_k R_est_k^T``), then
+    ``angle(R_ref_k^T R* R_est_k)``. Position-free: it scores orientations whatever the translation estimate."""
+    M = np.einsum("kij,klj->il", R_ref, R_est)  # sum R_ref R_est^T
+    U, _, Vt = np.linalg.svd(M)
+    S = np.diag([1.0, 1.0, np.linalg.det(U @ Vt)])
+    R_star = U @ S @ Vt
+    return rotation_angle(np.swapaxes(R_ref, -1, -2) @ R_star @ R_est)
+
+
 def relative_poses(T: np.ndarray, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """(N, 4, 4) poses and (K,) index pairs -> (K, 4, 4) ``T_i^-1 T_j``."""
     Ti_inv = np.linalg.inv(T[i])  # general inverse: exact enough for SE(3) and keeps the code short

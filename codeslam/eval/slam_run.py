@@ -29,7 +29,8 @@ def rotation_drift_deg(est: Trajectory, ref: Trajectory, ate: metrics.ATEResult)
 
 def evaluate_run(est: Trajectory, gt: Trajectory) -> dict:
     """Metrics of the estimate against ground truth: ATE (SE(3) and Sim(3) alignment), RPE, the orientation
-    error relative to the first frame (``rot_err_rmse_deg``, ``rot_err_max_deg``), and two no-motion
+    error relative to the first frame (``rot_err_rmse_deg``, ``rot_err_max_deg``) and after the best rotation
+    alignment (``rot_aligned_rmse_deg``, ``rot_aligned_max_deg``), and two no-motion
     baselines: a constant pose at the first ground-truth pose
     (``no_motion_ate_rmse``, unaligned) and the best any constant pose can do under alignment
     (``no_motion_ate_rmse_aligned``, the RMS distance of the positions to their mean).
@@ -42,6 +43,10 @@ def evaluate_run(est: Trajectory, gt: Trajectory) -> dict:
                n_matched=s["n_matched"], path_length_gt=s["path_length_gt"], drift_end_error=s["drift_end_error"])
     rot = rotation_drift_deg(est, gt, se3.ate)
     out.update(rot_err_rmse_deg=float(np.sqrt(np.mean(rot**2))), rot_err_max_deg=float(rot.max()))
+    R_est = est.poses.numpy()[se3.ate.est_idx, :3, :3]
+    R_ref = gt.poses.numpy()[se3.ate.ref_idx, :3, :3]
+    rot_al = np.degrees(metrics.orientation_errors_aligned(R_est, R_ref))
+    out.update(rot_aligned_rmse_deg=float(np.sqrt(np.mean(rot_al**2))), rot_aligned_max_deg=float(rot_al.max()))
     sim3 = metrics.ate(est, gt, align="sim3")
     out.update(ate_sim3_rmse=float(sim3.rmse), sim3_scale=float(sim3.alignment.s))
     xyz = gt.positions_xyz.numpy()

@@ -75,6 +75,9 @@ class SfMConfig:
     # --- priors ----------------------------------------------------------------------------------------------
     code_prior_weight: float = 1.0
     """Weight of the VAE prior 0.5 w |c|^2 (N(0, I) on codes): keeps unobservable code directions at zero."""
+    depth_scale_sigma: float = 0.0
+    """Prior on each frame's mean log depth at its zero-code value (:mod:`codeslam.sfm.scale_prior`), in log
+    depth; 0 switches it off. The SLAM window sets its own (``window.depth_scale_sigma``)."""
     affine_prior_sigma: tuple[float, float] = (0.2, 0.1)
     """Gaussian prior sigmas on (log-gain, bias): keeps the normal equations definite on pairs with no overlap."""
 
@@ -120,6 +123,8 @@ class SfMConfig:
             raise ConfigError(f"SfM config: pyramid levels must be >= 0, got {self.pyramid_levels}")
         if any(s <= 0 for s in self.affine_prior_sigma) or len(self.affine_prior_sigma) != 2:
             raise ConfigError("SfM config: affine_prior_sigma must be two positive numbers")
+        if not self.depth_scale_sigma >= 0:
+            raise ConfigError(f"SfM config: depth_scale_sigma must be >= 0, got {self.depth_scale_sigma}")
         if self.code_prior_weight < 0 or self.occlusion_weight < 0 or self.border < 0:
             raise ConfigError("SfM config: code_prior_weight, occlusion_weight and border must be >= 0")
         if any(n < 0 for n in self.max_iterations):

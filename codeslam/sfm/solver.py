@@ -27,6 +27,7 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, LevelData, build_levels
 from codeslam.sfm.normal_equations import assemble
 from codeslam.sfm.residuals import PairEvaluation, evaluate_pairs, pair_jacobians, robust_weights
+from codeslam.sfm.scale_prior import DepthScalePrior
 from codeslam.sfm.variables import AFFINE, CODE, RS, RS_DIM, BlockId, LinearPrior, SfMState, VariableLayout
 
 
@@ -263,8 +264,12 @@ def sfm(
                                     rolling_shutter=cfg.rolling_shutter)
     reports = []
     t0 = time.perf_counter()
+    with_depth = [i for i, kf in enumerate(keyframes) if kf.decoder is not None]
     for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
-        problem = PairProblem(levels[lvl], pair_t, cfg, priors)
+        terms = list(priors)
+        if cfg.depth_scale_sigma > 0 and with_depth:  # each frame's scale near the network's prediction
+            terms.append(DepthScalePrior(levels[lvl], with_depth, cfg.depth_scale_sigma))
+        problem = PairProblem(levels[lvl], pair_t, cfg, terms)
         state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, profile)
         reports.append((lvl, rep))
     _sync(device)

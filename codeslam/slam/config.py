@@ -43,6 +43,11 @@ class TrackerConfig:
     """Estimate a gain and bias between keyframe and frame (exposure changes, paper Sec. 5.2)."""
     motion_model: str = "constant_velocity"
     """Initial guess and failure fallback: 'constant_velocity' (repeat the last inter-frame motion) or 'static'."""
+    motion_prior_translation: float = 0.0
+    """Noise (map units, ~metres, per frame) of a soft prior on the frame's translation at the motion model's
+    prediction; 0 switches it off."""
+    motion_prior_rotation_deg: float = 0.0
+    """Noise (degrees per frame) of the same prior on the rotation; 0 leaves the rotation free."""
     min_overlap: float = 0.3
     """Tracking fails when fewer than this fraction of the keyframe's pixels land inside the frame."""
     min_inlier_ratio: float = 0.6

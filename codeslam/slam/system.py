@@ -240,7 +240,8 @@ class CodeSLAM:
         track = self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, init, self._affine_guess(ref),
                                    valid=frame.valid, reprojection=term,
                                    min_feature_inliers=fcfg.min_inliers if term is not None else 0,
-                                   feature_threshold=fcfg.pnp_threshold)
+                                   feature_threshold=fcfg.pnp_threshold,
+                                   T_kf_prior=T_kf_guess if len(self._records) >= 2 else None)
         if term is not None:
             source = "direct+features" if not track.photometric_reason else "features"
         else:
@@ -280,12 +281,25 @@ class CodeSLAM:
         """The motion model's pose, flagged; after ``recovery.lost_frames`` such frames a new map segment."""
         self._lost += 1
         self._matches = None
-        if self._lost > self.config.recovery.lost_frames and bool(torch.isfinite(views.frame.image).all()):
+        if self._lost > self.config.recovery.lost_frames and self._can_anchor(views):
             self.segment += 1
             return self._restart(views, ref.T_wc @ T_kf_guess, timer, track, PREDICTED,
                                  f"new segment after {self._lost - 1} lost frames ({reason})", rolled_back)
         return self._record(views.frame, ref, T_kf_guess, False, timer, track=track, reason=reason, status=PREDICTED,
                             source="motion model", rolled_back=rolled_back)
+
+    def _can_anchor(self, views: _Views) -> bool:
+        """Whether a frame can start a new map segment: finite, textured (a black or blank frame would anchor a
+        map nothing can be tracked against) and, with features, with keypoints to match later frames to."""
+        frame = views.frame
+        if not bool(torch.isfinite(frame.image).all()):
+            return False
+        valid = frame.gray[0] if frame.valid is None else frame.gray[0][frame.valid]
+        if valid.numel() < 2 or float(valid.std()) < self.config.tracker.min_intensity_std:
+            return False
+        if self.config.features.enabled:
+            return views.features is not None and len(views.features) >= 2 * self.config.features.min_inliers
+        return True
 
     def _restart(self, views: _Views, T_wc: torch.Tensor, timer: _StageTimer, track: TrackResult | None,
                  status: str, reason: str, rolled_back: str) -> FrameResult:

@@ -21,7 +21,7 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.solver import PairProblem, levenberg_marquardt
-from codeslam.sfm.variables import AFFINE_DIM, CODE, POSE, BlockId, SfMState, VariableLayout
+from codeslam.sfm.variables import AFFINE_DIM, CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
 from codeslam.slam.config import TrackerConfig
 from codeslam.slam.poses import project_to_se3
 from codeslam.slam.reprojection import ReprojectionTerm
@@ -107,6 +107,7 @@ class PhotometricTracker:
         reprojection: ReprojectionTerm | None = None,
         min_feature_inliers: int = 0,
         feature_threshold: float = 3.0,
+        T_kf_prior: torch.Tensor | None = None,
     ) -> TrackResult:
         """Align ``image`` ((1, H, W) grey or (3, H, W) RGB, seen by ``camera``) to ``keyframe`` (with decoder)
         whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,).
@@ -135,6 +136,8 @@ class PhotometricTracker:
         pairs = torch.tensor([[0, 1]], device=device)  # A = keyframe (decoded depth), B = frame
         iterations = 0
         terms = [] if reprojection is None or len(reprojection) == 0 else [reprojection]
+        if T_kf_prior is not None and cfg.motion_prior_translation > 0:  # the motion model as a soft constraint
+            terms.append(self._motion_prior(T_kf_prior, dtype, device))
         for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):  # coarse to fine (Sec. 4.2)
             problem = PairProblem(levels[lvl], pairs, sfm_cfg, terms)
             state, report = levenberg_marquardt(problem, state, layout, sfm_cfg, iters)
@@ -149,6 +152,19 @@ class PhotometricTracker:
             if not result.ok and finite and min_feature_inliers > 0 and result.feature_inliers >= min_feature_inliers:
                 result.ok, result.reason = True, ""  # the features vouch for the pose (see TrackResult)
         return result
+
+    def _motion_prior(self, T_kf_prior: torch.Tensor, dtype: torch.dtype, device: torch.device) -> LinearPrior:
+        """``0.5 |log(T T_pred^-1)|^2_W`` on the frame's pose around the motion model's prediction: a translation
+        noise of ``motion_prior_translation`` (map units per frame) and, if set, a rotation noise. It resolves what
+        the images leave ambiguous (a small rotation and a small translation move a distant scene alike), which on
+        a rotating camera turned into translation jitter of several millimetres per frame."""
+        cfg = self.cfg
+        inv = [1.0 / cfg.motion_prior_translation**2] * 3
+        rot = cfg.motion_prior_rotation_deg
+        inv += [0.0 if rot <= 0 else 1.0 / math.radians(rot) ** 2] * 3
+        H = torch.diag(torch.tensor(inv, dtype=dtype, device=device))
+        return LinearPrior([BlockId(POSE, 1)], H, torch.zeros(6, dtype=dtype, device=device),
+                           [T_kf_prior.to(dtype=dtype, device=device)])
 
     def _checked(self, state: SfMState, ev, gray_A: torch.Tensor, cost: float, iterations: int) -> TrackResult:
         """The track result with the photometric failure checks applied (non-finite, overlap, inlier ratio,

@@ -247,3 +247,21 @@ def test_evaluate_summary_keys():
     assert summ["scale"] == pytest.approx(2.0)
     assert summ["ate_rmse"] < 1e-12
     assert summ["path_length_gt"] == pytest.approx(ref.path_length)
+
+
+def test_orientation_errors_after_the_best_rotation_alignment():
+    from codeslam.eval.metrics import orientation_errors_aligned
+    from codeslam.geometry.lie import so3_exp
+
+    g = torch.Generator().manual_seed(4)
+    R_ref = so3_exp(0.5 * torch.randn(30, 3, generator=g, dtype=torch.float64)).numpy()
+    R_w = so3_exp(torch.tensor([0.3, -0.2, 0.7], dtype=torch.float64)).numpy()
+    # The estimate lives in a rotated world frame: after alignment its orientations are exact.
+    est = np.swapaxes(R_w, 0, 1) @ R_ref
+    assert np.abs(orientation_errors_aligned(est, R_ref)).max() < 1e-9
+    # With per-frame noise of known angle the aligned errors are about that angle, and never above the raw ones.
+    noise = so3_exp(0.02 * torch.randn(30, 3, generator=g, dtype=torch.float64)).numpy()
+    err = orientation_errors_aligned(est @ noise, R_ref)
+    raw = orientation_errors_aligned(R_ref @ noise, R_ref)
+    assert np.sqrt(np.mean(err**2)) <= np.sqrt(np.mean(raw**2)) + 1e-9
+    assert 0.01 < np.sqrt(np.mean(err**2)) < 0.06

@@ -1,0 +1,139 @@
+"""The map holds: the marginal prior is bounded below, the depth-scale prior's Jacobian is right, a window solve
+that throws the map away is detected, a lost camera is relocalised or restarts a segment, and the per-frame log
+says what happened."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+
+import torch
+from slam_scene import MemorySequence, small_config, synth_frames
+
+from codeslam.geometry.lie import se3_exp
+from codeslam.sfm.keyframes import build_levels
+from codeslam.sfm.scale_prior import DepthScalePrior
+from codeslam.sfm.variables import CODE, BlockId, SfMState, VariableLayout
+from codeslam.slam.depth import standin_depth_model
+from codeslam.slam.pipeline import FRAME_LOG_COLUMNS, run_slam, write_frame_log
+from codeslam.slam.system import CodeSLAM
+from codeslam.slam.window import bounded_quadratic
+
+D = torch.float64
+
+
+def test_bounded_quadratic_drops_the_unbounded_direction_and_keeps_the_rest():
+    g = torch.Generator().manual_seed(0)
+    A = torch.randn(6, 4, generator=g, dtype=D)
+    H = A @ A.T  # rank 4: two null directions
+    null = torch.linalg.svd(A.T).Vh[-2:].T  # (6, 2) orthonormal null space of H
+    b_range = H @ torch.randn(6, generator=g, dtype=D)
+    b = b_range + 3.0 * null[:, 0]
+    H2, b2 = bounded_quadratic(H, b)
+    assert torch.allclose(H2, H, atol=1e-9)
+    assert torch.allclose(bounded_quadratic(H, b_range)[1], b_range, atol=1e-8)  # nothing to drop: unchanged
+    assert float((null.T @ b2).abs().max()) < 1e-8  # b lies in the range of H: bounded below
+    # Along the null direction the original cost falls without end; the bounded one stays flat.
+    d = -100.0 * null[:, 0]
+    assert float(0.5 * d @ H @ d + b @ d) < -100.0
+    assert abs(float(0.5 * d @ H2 @ d + b2 @ d)) < 1e-5
+    # Blocks of very different information (codes vs poses) keep their information after Jacobi scaling.
+    S = torch.diag(torch.tensor([1e8, 1e8, 1.0, 1.0, 1e-2, 1e-2], dtype=D))
+    H3, _ = bounded_quadratic(S @ H @ S, S @ b_range)
+    assert torch.allclose(H3, S @ H @ S, rtol=1e-6, atol=1e-6)
+
+
+def test_depth_scale_prior_jacobian_matches_autograd_float64():
+    frames = synth_frames(3, 2, 10.0)
+    dec = standin_depth_model(num_levels=3)(frames[0]).to(dtype=D)
+    from codeslam.sfm.keyframes import Keyframe
+
+    level = build_levels([Keyframe(frames[0].gray.to(D), frames[0].camera, dec)], [1], D, torch.device("cpu"))[1]
+    prior = DepthScalePrior(level, [0], sigma=0.1)
+    C = dec.code_size
+    code = 0.3 * torch.randn(C, generator=torch.Generator().manual_seed(1), dtype=D)
+    state = SfMState(torch.eye(4, dtype=D)[None], code[None], torch.zeros(0, 2, dtype=D))
+    assert float(prior.cost(SfMState(state.poses, torch.zeros(1, C, dtype=D), state.affine))) < 1e-20
+    r, J = prior._residual(state, 0, prior._target[0])
+    J_auto = torch.autograd.functional.jacobian(
+        lambda c: prior._residual(SfMState(state.poses, c[None], state.affine), 0, prior._target[0])[0], code)
+    assert torch.allclose(J, J_auto, atol=1e-10, rtol=1e-8)
+    layout = VariableLayout([(BlockId(CODE, 0), C)])
+    H, g = torch.zeros(C, C, dtype=D), torch.zeros(C, dtype=D)
+    prior.add_to(H, g, layout, state)
+    assert torch.allclose(g, J * r) and torch.allclose(H, torch.outer(J, J))
+
+
+def _system():
+    return CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
+
+
+def test_window_check_rejects_a_solve_that_moves_the_map_away():
+    frames = synth_frames(3, 12, 10.0)
+    system = _system()
+    for f in frames:
+        system.process(f)
+    win = system.window
+    assert len(win) >= 2
+    snap = win.snapshot()
+    depth = {k.id: k.median_depth() for k in win.keyframes}
+    assert win.check(snap, depth) == ""  # nothing moved
+    last = win.keyframes[-1]
+    last.T_wc = se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(30.0), 0.0], dtype=D)) @ last.T_wc
+    assert "rotation" in win.check(snap, depth)
+    win.restore(snap)
+    assert torch.equal(last.T_wc, snap.values[last.id][0]) and win.check(snap, depth) == ""
+    last.code = last.code + 50.0  # a code that changes the keyframe's depth scale
+    assert "depth" in win.check(snap, depth) or "non-finite" in win.check(snap, depth)
+
+
+def test_a_lost_camera_is_relocalised_or_restarts_and_the_log_says_so(tmp_path):
+    frames = synth_frames(3, 24, 10.0, 128, 96)  # keypoints need more pixels than 64x48
+    # Frames 8-11 are black (a covered lens): no pose can be tracked; then the camera reappears.
+    dark = [dataclasses.replace(f, image=torch.zeros_like(f.image)) for f in frames[8:12]]
+    seq = MemorySequence(frames[:8] + dark + frames[12:])
+    system = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
+    run = run_slam(seq, system, frames[0].camera)
+    status = [r.status for r in run.results]
+    assert status[0] == "initialising"
+    assert all(s == "predicted" for s in status[8:12]), status
+    assert "predicted" not in status[14:], status  # back on track within two frames of the camera reappearing
+    path = tmp_path / "frames.csv"
+    write_frame_log(path, run.results)
+    rows = list(csv.DictReader(path.open()))
+    assert tuple(rows[0].keys()) == FRAME_LOG_COLUMNS and len(rows) == len(frames)
+    assert [r["status"] for r in rows] == status
+    assert all(rows[i]["reason"] for i in range(8, 12))  # a lost frame says why
+    assert bool(torch.isfinite(run.trajectory.poses).all())
+
+
+def test_relocalisation_finds_the_keyframe_that_sees_the_frame():
+    from codeslam.geometry.lie import se3_inverse
+    from codeslam.slam.config import FeatureConfig
+    from codeslam.slam.features import pose_distance, scaled_camera, to_uint8
+    from codeslam.slam.frontend import KeyframeFeatures, SparseTracker
+
+    frames = synth_frames(5, 31, 10.0, 128, 96)
+    cam = frames[0].camera
+    tracker = SparseTracker(FeatureConfig(scale=2), scaled_camera(cam, 2), cam)
+
+    def feats(f):
+        from codeslam.data.frame import resample_frame
+
+        return tracker.extract(to_uint8(resample_frame(f, tracker.camera).gray))
+
+    cands = []
+    for i in (0, 15, 30):
+        fe = feats(frames[i])
+        cands.append((i, KeyframeFeatures(fe, tracker.points(fe, frames[i].depth))))
+    found = tracker.relocalise(cands, feats(frames[17]), min_inliers=30)
+    assert found is not None
+    kid, track = found
+    assert kid == 15
+    T_true = se3_inverse(frames[15].pose) @ frames[17].pose
+    t_err, r_err = pose_distance(T_true, track.T_kf)
+    assert t_err < 0.05 and r_err < 2.0, (t_err, r_err)
+    # A frame of another room matches none of them.
+    other = synth_frames(8, 1, 10.0, 128, 96)[0]
+    assert tracker.relocalise(cands, feats(other), min_inliers=30) is None
