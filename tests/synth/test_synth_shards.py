@@ -113,4 +113,4 @@ def test_version_2_shards_are_marked_and_see_farther(tmp_path):
         assert ("data_version" in meta) == (version == 2)  # version 1 shards keep their old metadata
     assert depths[2] > 1.3 * depths[1]  # larger rooms seen along their length
     with pytest.raises(CodeSLAMError, match="data-version"):
-        ShardSpec(views=1, camera=cam, version=3)
+        ShardSpec(views=1, camera=cam, version=4)
