@@ -43,11 +43,15 @@ class CameraEffects:
     rolling_shutter: float = 0.0
     # Lens distortion undistorted again: k1 uniform in [-x, x] (barrel to pincushion).
     distortion: float = 0.0
+    # A source camera with a narrower field of view than the canonical one: in half the images, black bands
+    # (depth invalid) at the top and bottom, each up to x of the height, and at the sides, each up to 2x/3 of
+    # the width. The readers' resampling leaves them (the HoloLens walk: 21% of the canonical image).
+    border: float = 0.0
 
     @property
     def any(self) -> bool:
         return any(v > 0 for v in (self.exposure, self.vignetting, self.sensor_noise, self.motion_blur,
-                                   self.rolling_shutter, self.distortion))
+                                   self.rolling_shutter, self.distortion, self.border))
 
 
 def _radius2(B: int, H: int, W: int, device) -> torch.Tensor:
@@ -140,14 +144,29 @@ def lens_distortion(image: torch.Tensor, depth: torch.Tensor, k1: torch.Tensor):
     return _warp(img_d, dep_d, torch.stack([x * s, y * s], -1) * to_norm)
 
 
+def narrow_field_of_view(image: torch.Tensor, depth: torch.Tensor, bands: torch.Tensor):
+    """Black out bands of image (B, C, H, W) and invalidate them in depth (B, 1, H, W): ``bands`` (B, 4) are the
+    fractions of the height (top, bottom) and of the width (left, right) that a narrower source camera did not
+    see (0 = none)."""
+    B, _, H, W = image.shape
+    rows = torch.arange(H, device=image.device, dtype=torch.float32)[None, :, None] + 0.5
+    cols = torch.arange(W, device=image.device, dtype=torch.float32)[None, None, :] + 0.5
+    top, bottom = (bands[:, 0] * H)[:, None, None], (H - bands[:, 1] * H)[:, None, None]
+    left, right = (bands[:, 2] * W)[:, None, None], (W - bands[:, 3] * W)[:, None, None]
+    seen = ((rows >= top) & (rows <= bottom) & (cols >= left) & (cols <= right))[:, None]  # (B, 1, H, W)
+    return image * seen, depth * seen
+
+
 def apply_camera_effects(image: torch.Tensor, depth: torch.Tensor, fx: CameraEffects, generator: torch.Generator):
     """All enabled effects on a batch: image (B, C, H, W) sRGB [0, 1], depth (B, 1, H, W) -> both, changed.
     Order as in a camera: geometry (lens, rolling shutter), then in linear light exposure and vignetting,
-    motion blur, noise. Every random draw comes from ``generator`` (CPU), one fixed-size block per batch."""
+    motion blur, noise, and last the black bands of a narrower field of view. Every random draw comes from
+    ``generator`` (CPU), one fixed-size block per batch and effect."""
     B, _, H, W = image.shape
     dev = image.device
     u = torch.rand(B, 8, generator=generator).to(dev)
     noise = torch.randn(image.shape, generator=generator).to(dev) if fx.sensor_noise > 0 else None
+    band = torch.rand(B, 5, generator=generator).to(dev) if fx.border > 0 else None
     if fx.distortion > 0:
         image, depth = lens_distortion(image, depth, fx.distortion * (2 * u[:, 0] - 1))
     if fx.rolling_shutter > 0:
@@ -164,4 +183,8 @@ def apply_camera_effects(image: torch.Tensor, depth: torch.Tensor, fx: CameraEff
         lin = motion_blur(lin, fx.motion_blur * u[:, 4], torch.pi * u[:, 5])
     if noise is not None:
         lin = sensor_noise(lin, fx.sensor_noise * u[:, 6], gain, noise)
-    return linear_rgb_to_rgb(lin.clamp(0, 1)), depth
+    image = linear_rgb_to_rgb(lin.clamp(0, 1))
+    if band is not None:  # last: the reader's resampling blacks out what the source camera did not see
+        scale = torch.tensor([1.0, 1.0, 2 / 3, 2 / 3], device=dev) * fx.border
+        image, depth = narrow_field_of_view(image, depth, band[:, 1:] * scale * (band[:, :1] < 0.5))
+    return image, depth

@@ -163,6 +163,9 @@ class TrainConfig:
     motion_blur: float = 0.0
     rolling_shutter: float = 0.0
     distortion: float = 0.0
+    # Black bands of a source camera with a narrower field of view than the canonical one, in half the images:
+    # up to this fraction of the height at the top and at the bottom (2/3 of it of the width at each side).
+    border: float = 0.0
     # Weights file to start from (fine-tuning) instead of random weights; "" = random, "default" = the shipped
     # weights. Its architecture must be the network config's.
     init_weights: str = ""
@@ -187,15 +190,16 @@ class TrainConfig:
         if not 0 <= self.flip_prob <= 1:
             raise ConfigError(f"train.flip_prob must lie in [0, 1], got {self.flip_prob}")
         for name in ("brightness", "contrast", "gamma", "noise_std", "checkpoint_minutes", "exposure", "vignetting",
-                     "sensor_noise", "rolling_shutter", "distortion"):
+                     "sensor_noise", "rolling_shutter", "distortion", "border"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"train.{name} must be >= 0, got {getattr(self, name)}")
         from codeslam.network.camera_effects import BLUR_TAPS
 
         if not 0 <= self.motion_blur <= BLUR_TAPS:
             raise ConfigError(f"train.motion_blur must lie in [0, {BLUR_TAPS}] pixels, got {self.motion_blur}")
-        if self.vignetting > 1 or self.distortion > 0.5:
-            raise ConfigError("train.vignetting must be at most 1 and train.distortion at most 0.5")
+        if self.vignetting > 1 or self.distortion > 0.5 or self.border > 0.3:
+            raise ConfigError("train.vignetting must be at most 1, train.distortion at most 0.5 and train.border at "
+                              "most 0.3")
         if self.workers < 0:
             raise ConfigError(f"train.workers must be >= 0, got {self.workers}")
 

@@ -256,7 +256,7 @@ class DataOrder:
 def camera_effects_of(cfg: TrainConfig) -> CameraEffects | None:
     """The camera effects a training config asks for (None when all are off)."""
     fx = CameraEffects(cfg.exposure, cfg.vignetting, cfg.sensor_noise, cfg.motion_blur, cfg.rolling_shutter,
-                       cfg.distortion)
+                       cfg.distortion, cfg.border)
     return fx if fx.any else None
 
 

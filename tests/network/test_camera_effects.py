@@ -96,3 +96,17 @@ def test_apply_is_reproducible_and_off_by_default():
     assert torch.equal(plain, again) and not torch.equal(plain, exposed)
     with pytest.raises(Exception, match="motion_blur"):
         TrainConfig(motion_blur=50.0)
+
+
+def test_narrow_field_of_view_blacks_out_bands_and_their_depth():
+    from codeslam.network.camera_effects import narrow_field_of_view
+
+    x, depth = _ramp(2), torch.ones(2, 1, H, W)
+    bands = torch.tensor([[0.25, 0.0, 0.0, 0.125], [0.0, 0.0, 0.0, 0.0]])
+    img, dep = narrow_field_of_view(x, depth, bands)
+    assert float(img[0, :, :6].abs().max()) == 0.0 and float(dep[0, :, :6].max()) == 0.0  # top quarter
+    assert float(img[0, :, :, -4:].abs().max()) == 0.0 and float(dep[0, :, 6:, :-4].min()) == 1.0
+    assert torch.equal(img[1], x[1]) and torch.equal(dep[1], depth[1])
+    fx = CameraEffects(border=0.15)
+    out, d = apply_camera_effects(x, depth, fx, torch.Generator().manual_seed(0))
+    assert float((d == 0).float().mean()) < 0.5
