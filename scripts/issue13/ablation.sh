@@ -8,7 +8,8 @@
 #   codeslam synth /work/train_data/synth128_v1 --train --views 8192 --views-per-scene 16 --shard-size 512 \
 #       --size 128x96 --seed 1000 --workers 2     # the first half of the shipped weights' own training data
 #   python scripts/split_real_rgbd.py             # ../shared/train_data -> real_split/{train,val}
-# Usage: scripts/issue13/ablation.sh NAME...  (names below); runs go to $RUNS (default /work/train_data/runs).
+# Usage: [STEPS=N] scripts/issue13/ablation.sh NAME...  (names below; eval-NAME only measures); runs go to $RUNS
+# (default /work/train_data/runs); STEPS overrides the configs' 1,500 steps.
 set -e
 cd "$(dirname "$0")/../.."
 RUNS=${RUNS:-/work/train_data/runs}
@@ -27,7 +28,7 @@ for name in "$@"; do
     eval-*) data=""; name=${name#eval-} ;;
     *) echo "unknown run $name"; exit 2 ;;
   esac
-  [ -n "$data" ] && python3 -m codeslam train --data $data --out "$RUNS/$name" --config $cfg --threads 1 --no-progress --resume
+  [ -n "$data" ] && python3 -m codeslam train --data $data --out "$RUNS/$name" --config $cfg --threads 1 --no-progress --resume ${STEPS:+--steps $STEPS}
   python3 scripts/depth_prior_eval.py --weights "$RUNS/$name/weights.safetensors" --json "$RUNS/$name/prior_eval.json" \
       --markdown "$RUNS/$name/prior_eval.md" --threads 1
 done
