@@ -88,3 +88,23 @@ def small_config(**window) -> SLAMConfig:
         keyframes=KeyframeConfig(),
         window=replace(WindowConfig(), sfm=sfm, **window),
     )
+
+
+@functools.lru_cache(maxsize=4)
+def _rendered_preset(seed: int, frames: int, motion: str, fps: float, width: int, height: int):
+    from codeslam.synth.motion import get_preset, preset_trajectory
+
+    scene = build_scene(seed, room=get_preset(motion).room)
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7247]))
+    poses = preset_trajectory(scene, frames, rng, motion, fps=fps)
+    cam = canonical_camera(width, height)
+    image, depth = render(scene, cam, poses, RenderConfig(ao_samples=0, supersample=2))
+    return cam, image, depth, poses
+
+
+def preset_frames(seed: int, frames: int, motion: str, fps: float, width: int = 160, height: int = 120) -> list[Frame]:
+    """``frames`` frames of a generator room along a motion preset's path (a person walking or turning with the
+    camera, :mod:`codeslam.synth.motion`) at ``fps``, with exact depth and poses."""
+    cam, image, depth, poses = _rendered_preset(seed, frames, motion, fps, width, height)
+    return [Frame(1000.0 + i / fps, image[i].clone(), cam, depth[i].clone(), poses[i].clone(), i)
+            for i in range(frames)]
