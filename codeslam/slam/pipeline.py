@@ -96,12 +96,16 @@ def run_slam(
         t2 = time.perf_counter()
         process_s += t2 - t1
         totals["read"] += 1e3 * (t1 - t0)
-        for k, v in result.timings_ms.items():
-            totals[k] = totals.get(k, 0.0) + v
         results.append(result)
         visualizer.update(frame, result, system)
         if progress is not None:
             progress(n + 1, len(frames), result)
+    t3 = time.perf_counter()
+    system.finish()  # the mapping thread's last keyframe (parallel mode)
+    process_s += time.perf_counter() - t3
+    for r in results:  # stage times once mapping has finished (a keyframe's mapping is added to its frame)
+        for k, v in r.timings_ms.items():
+            totals[k] = totals.get(k, 0.0) + v
     visualizer.close()
     return SLAMRun(
         results=results, trajectory=system.trajectory(), keyframe_trajectory=system.keyframe_trajectory(),

@@ -29,6 +29,7 @@ results belong to :mod:`codeslam.slam.pipeline`.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -48,6 +49,7 @@ from codeslam.slam.config import SLAMConfig
 from codeslam.slam.features import Features, scaled_camera, to_uint8
 from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
 from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
+from codeslam.slam.mapping import Mapper, MappingJob, MappingResult
 from codeslam.slam.poses import project_to_se3
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
 from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport, WindowSnapshot
@@ -151,7 +153,7 @@ class CodeSLAM:
     """
 
     def __init__(self, config: SLAMConfig, depth_model: DepthModelFactory,
-                 camera: PinholeCamera | None = None) -> None:
+                 camera: PinholeCamera | None = None, parallel: bool = False) -> None:
         self.config = config
         self.depth_model = depth_model
         self.device = torch.device(config.device)
@@ -159,15 +161,25 @@ class CodeSLAM:
         self.camera = camera
         self.tracker = PhotometricTracker(config.tracker, config.window.sfm)
         self.sparse: SparseTracker | None = None  # made with the camera (first frame)
-        self.window = SlidingWindow(config.window)
+        self.mapper = Mapper(config, parallel=parallel)  # the window; inline or on its own thread
         self.keyframes: list[MapKeyframe] = []  # every keyframe ever made, by id
         self.ref: MapKeyframe | None = None  # the keyframe frames are tracked against
         self.segment = 0
         self._records: list[_FrameRecord] = []
+        self._results: list[FrameResult] = []  # what process() returned, completed when mapping finishes
         self._keyframe_record: dict[int, int] = {}  # keyframe id -> position of its frame's record
         self._matches: FrameMatches | None = None  # the last frame's keypoints matched to the reference
         self._lost = 0  # consecutive frames whose pose is only predicted
-        self._undo: tuple[WindowSnapshot, MapKeyframe] | None = None  # the map before the last window solve
+        self._undo: WindowSnapshot | None = None  # the map before the last window solve (sequential mode)
+        self._next_id = 0
+
+    @property
+    def window(self) -> SlidingWindow:
+        return self.mapper.window
+
+    @property
+    def parallel(self) -> bool:
+        return self.mapper.parallel
 
     # ---- the algorithm --------------------------------------------------------------------------------------
     def process(self, frame: Frame) -> FrameResult:
@@ -175,6 +187,7 @@ class CodeSLAM:
         keyframe, optimise the window and marginalise the oldest keyframe (paper Sec. 4.2-4.3)."""
         timer = _StageTimer(self.device)
         self._check(frame)
+        self._apply(self.mapper.collect())  # keyframes the mapping thread finished: track against the newest
         views = self._views(frame, timer)
         if not self.keyframes:  # the first frame is the map's origin
             return self._start_map(views, timer)
@@ -217,12 +230,27 @@ class CodeSLAM:
         frames_since = len(self._records) - self._keyframe_record.get(ref.id, len(self._records) - 1)
         decision = decide_keyframe(track.T_kf, ref.median_depth(), track.overlap, frames_since, True,
                                    self.config.keyframes)
+        if decision.add and self.mapper.busy:  # PTAM: the mapping thread is still on the last keyframe
+            kcfg = self.config.keyframes
+            urgent = (decision.overlap < kcfg.urgent_overlap or decision.baseline_ratio >= 2 * kcfg.min_baseline_ratio
+                      or decision.rotation_deg >= 2 * kcfg.max_rotation_deg)
+            if urgent:  # the reference is about to leave the view: wait for the mapping thread rather than lose it
+                self._apply(self.mapper.wait())
+                if self.ref.id != ref.id:  # a newer keyframe arrived meanwhile: track against it next frame
+                    decision = dataclasses.replace(decision, add=False, reason="keyframe arrived")
+            else:
+                decision = dataclasses.replace(decision, add=False, reason="mapping busy")
         kw = dict(track=track, decision=decision, status=status, source=source, rolled_back=rolled_back)
         if not decision.add:
             return self._record(views.frame, ref, track.T_kf, True, timer, **kw)
-        kf, window, marginalised = self._add_keyframe(views, ref.T_wc @ track.T_kf, timer, (ref, sparse))  # 4.3
-        return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), True, timer, window=window,
-                            marginalised=marginalised, reason=decision.reason, **kw)
+        T_wc = ref.T_wc @ track.T_kf
+        kid, segment = self._new_id(), self.segment
+        job = MappingJob(lambda: self._make_keyframe(views, T_wc, kid, segment), ref, sparse, len(self._records))
+        result = self._record(views.frame, ref, track.T_kf, True, timer, **kw)  # re-expressed once mapped
+        done = self.mapper.insert(job)  # Sec. 4.3: decode, marginalise, optimise the window
+        if done is not None:
+            self._apply([done])
+        return result
 
     def _track(self, views: _Views, ref: MapKeyframe,
                T_kf_guess: torch.Tensor) -> tuple[TrackResult, SparseTrack | None, str]:
@@ -305,11 +333,11 @@ class CodeSLAM:
                  status: str, reason: str, rolled_back: str) -> FrameResult:
         """Empty the window (its keyframes stay in the map for relocalisation and output) and make this frame the
         first keyframe of a new window at ``T_wc``, its pose the new gauge."""
-        self.window.reset()
+        self._apply(self.mapper.wait())
         self._undo, self._matches, self._lost = None, None, 0
         with timer("decode"):
-            kf = self._make_keyframe(views, T_wc)
-        self.window.add(kf)
+            kf = self._make_keyframe(views, T_wc, self._new_id(), self.segment)
+        self.mapper.restart(kf)
         self.keyframes.append(kf)
         self.ref = kf
         ok = status != PREDICTED
@@ -317,69 +345,54 @@ class CodeSLAM:
                             reason=reason, status=status, source="features" if ok else "motion model",
                             rolled_back=rolled_back)
 
-    def _add_keyframe(
-        self, views: _Views, T_wc: torch.Tensor, timer: _StageTimer,
-        tracked: tuple[MapKeyframe, SparseTrack | None] | None = None,
-    ) -> tuple[MapKeyframe, WindowReport, int | None]:
-        """Decode the frame's depth model, marginalise the oldest keyframe if the window is full, add the new
-        keyframe (code zero, tracked pose) and optimise the window jointly; roll the solve back if it fails the
-        window's checks. Marginalising before the solve keeps every solve at K keyframes (the paper's
-        "4-keyframes setup") and linearises the prior at the previous window's optimum."""
-        with timer("decode"):
-            kf = self._make_keyframe(views, T_wc)
-        marginalised = None
-        if self.window.is_full:
-            with timer("marginalise"):  # the oldest keyframe becomes a linear prior on the others
-                marginalised = self.window.remove_oldest().id
-        self.window.add(kf)
-        self.keyframes.append(kf)
-        with timer("features"):
-            self._match_keyframe(kf, tracked)
-        before = self.window.snapshot()
-        depth_before = {k.id: k.median_depth() for k in self.window.keyframes}
-        with timer("window"):  # all codes and poses of the window, photometric + geometric pairs (Sec. 4.1)
-            report = self.window.optimise()
-        if self.config.window.rollback:
-            report.rejected = self.window.check(before, depth_before)
-            if report.rejected:
-                self.window.restore(before)
-        self._refresh_points()
-        self.ref = kf
-        self._matches = None
-        self._undo = (before, kf) if self.config.window.rollback and not report.rejected else None
-        return kf, report, marginalised
-
-    def _match_keyframe(self, kf: MapKeyframe, tracked: tuple[MapKeyframe, SparseTrack | None] | None) -> None:
-        """Matched keypoints between the new keyframe and the window's others, for the window's reprojection
-        residuals: the tracking's inliers against its reference, guided matching at the current poses for the
-        rest."""
-        if kf.sparse is None:
-            return
-        ref, sparse = tracked if tracked is not None else (None, None)
-        for other in self.window.keyframes[:-1]:
-            if other.sparse is None:
+    def _apply(self, done: list[MappingResult]) -> None:
+        """Take in finished mapping steps: the keyframe joins the map, its frame's record and result are
+        re-expressed relative to it, and frames are tracked against it from now on."""
+        for m in done:
+            kf = m.keyframe
+            res = self._results[m.frame_position]
+            if res.is_keyframe:  # the solve of a keyframe already handed over (parallel mode)
+                res.window, res.marginalised_id = m.report, m.marginalised
+                for k, v in m.ms.items():
+                    res.timings_ms[k] = res.timings_ms.get(k, 0.0) + v
                 continue
-            if ref is not None and other.id == ref.id and sparse is not None and sparse.ok:
-                ia, ib = sparse.point, sparse.frame_kp
-            else:
-                ia, ib = self.sparse.match_keyframes(other.sparse, kf.sparse.features,
-                                                     se3_inverse(kf.T_wc) @ other.T_wc)
-            if len(ia) >= self.config.features.min_inliers // 2:
-                self.window.matches[(other.id, kf.id)] = (ia, ib)
+            self.keyframes.append(kf)
+            rec = self._records[m.frame_position]
+            rec.keyframe_id, rec.T_kf, rec.affine = kf.id, torch.eye(4, dtype=torch.float64), None
+            self._keyframe_record[kf.id] = m.frame_position
+            res.is_keyframe, res.keyframe_id, res.window, res.marginalised_id = True, kf.id, m.report, m.marginalised
+            res.reason = res.keyframe.reason if res.keyframe is not None else res.reason
+            res.T_wc = kf.T_wc
+            if res.status == INITIALISING and len(self.keyframes) >= 2:  # the second keyframe ends the start-up
+                res.status = TRACKED
+            for k, v in m.ms.items():  # the mapping stages, timed where they ran
+                res.timings_ms[k] = res.timings_ms.get(k, 0.0) + v
+            self.ref = kf
+            self._matches = None
+            self._undo = m.before if not self.parallel else None
 
     def _roll_back(self, why: str) -> str:
-        snap, kf = self._undo
+        snap = self._undo
         self._undo = None
-        self.window.restore(snap)
-        self._refresh_points()
+        self.mapper.roll_back(snap)
         return why
+
+    def finish(self) -> None:
+        """Wait for the mapping thread to finish its work and stop it (parallel mode; a no-op otherwise)."""
+        self._apply(self.mapper.wait())
+        self.mapper.close()
+
+    def _new_id(self) -> int:
+        kid = self._next_id
+        self._next_id += 1
+        return kid
 
     def _start_map(self, views: _Views, timer: _StageTimer) -> FrameResult:
         if not bool(torch.isfinite(views.frame.image).all()):
             raise CodeSLAMError(f"frame {views.frame.index} (the first) has non-finite pixels; cannot start the map")
         with timer("decode"):
-            kf = self._make_keyframe(views, torch.eye(4, dtype=torch.float64))
-        self.window.add(kf)
+            kf = self._make_keyframe(views, torch.eye(4, dtype=torch.float64), self._new_id(), self.segment)
+        self.mapper.start(kf)
         self.keyframes.append(kf)
         self.ref = kf
         return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), True, timer, reason="first frame",
@@ -406,6 +419,7 @@ class CodeSLAM:
             if self.sparse is None:
                 fcfg = self.config.features
                 self.sparse = SparseTracker(fcfg, scaled_camera(self.camera, fcfg.scale), self.camera)
+                self.mapper.sparse = self.sparse
                 self.window.sparse = SparseSettings(self.sparse.camera, fcfg.sigma,
                                                     self.sparse.extract.orb.getScaleFactor())
             with timer("features"):
@@ -419,7 +433,9 @@ class CodeSLAM:
                     features = self.sparse.extract(to_uint8(hi), None if valid is None else valid.numpy())
         return _Views(net, features)
 
-    def _make_keyframe(self, views: _Views, T_wc: torch.Tensor) -> MapKeyframe:
+    def _make_keyframe(self, views: _Views, T_wc: torch.Tensor, kid: int, segment: int) -> MapKeyframe:
+        """Decode the frame's depth model (the network's forward pass and code Jacobian, once per keyframe, Sec.
+        4.1) and make keyframe ``kid`` of map segment ``segment`` at ``T_wc`` with the zero code."""
         frame = views.frame
         decoder = self.depth_model(frame)
         H, W = frame.image.shape[-2:]
@@ -430,7 +446,7 @@ class CodeSLAM:
         if tuple(decoder.levels[0].prox0.shape) != (H, W):
             raise CodeSLAMError(f"the depth model's output is {tuple(decoder.levels[0].prox0.shape)}, the frame "
                                 f"{(H, W)}")
-        if self.keyframes and decoder.code_size != self.keyframes[0].code.shape[0]:
+        if self.keyframes and decoder.code_size != self.keyframes[0].code.shape[0]:  # keyframe 0 is never removed
             raise CodeSLAMError("the depth model changed its code size between keyframes")
         decoder = decoder.to(dtype=self.dtype, device=self.device)
         image = frame.image.to(dtype=self.dtype, device=self.device)  # RGB kept for the map's colours
@@ -438,21 +454,15 @@ class CodeSLAM:
         depth_zero = decoder.depth(code, 0).detach().cpu().float()
         b = decoder.levels[0].uncertainty
         kf = MapKeyframe(
-            id=len(self.keyframes), frame_index=frame.index, timestamp=float(frame.timestamp),
+            id=kid, frame_index=frame.index, timestamp=float(frame.timestamp),
             keyframe=Keyframe(image, frame.camera, decoder, frame.valid),
             T_wc=project_to_se3(T_wc), code=code, depth_zero=depth_zero,
             uncertainty=None if b is None else b.detach().cpu().float(),
-            depth_gt=None if frame.depth is None else frame.depth.detach().cpu().float(), segment=self.segment,
+            depth_gt=None if frame.depth is None else frame.depth.detach().cpu().float(), segment=segment,
         )
         if views.features is not None and len(views.features) > 0:
             kf.sparse = KeyframeFeatures(views.features, self.sparse.points(views.features, depth_zero))
         return kf
-
-    def _refresh_points(self) -> None:
-        """The window's keyframe points follow their codes after a solve."""
-        for k in self.window.keyframes:
-            if k.sparse is not None:
-                k.sparse.xyz = self.sparse.points(k.sparse.features, k.depth_map())
 
     def _pose(self, rec: _FrameRecord) -> torch.Tensor:
         return self.keyframes[rec.keyframe_id].T_wc @ rec.T_kf
@@ -488,12 +498,14 @@ class CodeSLAM:
         self._records.append(rec)
         if status == TRACKED and len(self.keyframes) < 2:
             status = INITIALISING
-        return FrameResult(
+        result = FrameResult(
             index=frame.index, timestamp=float(frame.timestamp), T_wc=self._pose(rec), tracking_ok=ok,
             status=status, keyframe_id=kf.id, is_keyframe=is_kf, reason=reason, segment=self.segment, source=source,
             track=track, keyframe=decision, window=window, marginalised_id=marginalised, rolled_back=rolled_back,
-            timings_ms=dict(timer.ms),
+            timings_ms=timer.ms,
         )
+        self._results.append(result)
+        return result
 
     # ---- results --------------------------------------------------------------------------------------------
     def trajectory(self) -> Trajectory:

@@ -1,0 +1,210 @@
+"""Mapping (paper Sec. 4.3): a new keyframe is decoded, the oldest keyframe marginalised when the window is full,
+and the window's codes and poses optimised jointly. "Inspired by PTAM", it runs either inline after the
+tracking of the frame that asked for it (``parallel=False``, deterministic: tests and debugging) or on a thread
+of its own beside the tracking (``parallel=True``), so that tracking never waits for a window optimisation:
+torch releases the GIL inside its kernels, and the two threads share the map as follows.
+
+* The mapping thread owns the window: only it changes keyframes' poses, codes and 3D points, and it replaces
+  those attributes (never mutates them in place), so a tracking thread reading ``ref.T_wc`` or ``ref.code``
+  sees one solve's values or the next one's, never a torn tensor.
+* A keyframe is asked for by :meth:`Mapper.insert`; in parallel mode it is refused while the mapping thread is
+  still busy with the previous one (the tracker asks again on a later frame), as PTAM's tracker does.
+* What the mapping thread finished (:class:`MappingResult`) is collected by the tracking thread with
+  :meth:`Mapper.collect`, which is where the tracker switches to the new keyframe; the tracking thread is the only
+  writer of the frame records.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from codeslam.geometry.lie import se3_inverse
+from codeslam.slam.config import SLAMConfig
+from codeslam.slam.frontend import SparseTrack, SparseTracker
+from codeslam.slam.window import MapKeyframe, SlidingWindow, WindowReport, WindowSnapshot
+
+
+@dataclass
+class MappingJob:
+    """A keyframe to add: ``decode()`` makes it (the network's forward pass and code Jacobian); ``ref`` and
+    ``sparse`` are the keyframe it was tracked against and the tracking's matches (reused as the pair's matched
+    keypoints); ``frame_position`` is the frame's place among the tracker's records."""
+
+    decode: Callable[[], MapKeyframe]
+    ref: MapKeyframe | None
+    sparse: SparseTrack | None
+    frame_position: int
+
+
+@dataclass
+class MappingResult:
+    """What one mapping step did: the new keyframe, the window solve, the keyframe marginalised (if any), the
+    window state before the solve (for a later rollback) and wall time per stage in ms. In parallel mode the
+    keyframe is handed over twice: as soon as it is decoded (``report`` None: the tracker can track against it
+    while the window is optimised) and again when the solve is done."""
+
+    keyframe: MapKeyframe
+    report: WindowReport | None
+    marginalised: int | None
+    frame_position: int
+    before: WindowSnapshot | None = None
+    ms: dict[str, float] = field(default_factory=dict)
+
+
+class Mapper:
+    """The window and the steps that change it; inline or on a background thread (module docstring).
+
+    config: the system's settings; sparse: the feature tracker (None without features), for matching keyframes.
+    """
+
+    def __init__(self, config: SLAMConfig, sparse: SparseTracker | None = None, parallel: bool = False) -> None:
+        self.config = config
+        self.window = SlidingWindow(config.window)
+        self.sparse = sparse
+        self.parallel = parallel
+        self._jobs: queue.Queue[MappingJob | None] = queue.Queue()
+        self._done: queue.Queue[MappingResult | BaseException] = queue.Queue()
+        self._busy = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.updates = 0  # window solves finished
+
+    # ---- asking for keyframes -----------------------------------------------------------------------------
+    @property
+    def busy(self) -> bool:
+        return self._busy.is_set()
+
+    def insert(self, job: MappingJob) -> MappingResult | None:
+        """Add a keyframe. Inline: do it now and return the result. Parallel: hand it to the mapping thread and
+        return None (collect the result later); refused (returns None and sets ``job`` aside) while busy —
+        check :attr:`busy` first."""
+        if not self.parallel:
+            return self._step(job)
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._loop, name="codeslam-mapping", daemon=True)
+            self._thread.start()
+        self._busy.set()
+        self._jobs.put(job)
+        return None
+
+    def collect(self) -> list[MappingResult]:
+        """The mapping steps finished since the last call (parallel mode); re-raises an error of the thread."""
+        out = []
+        while True:
+            try:
+                item = self._done.get_nowait()
+            except queue.Empty:
+                return out
+            if isinstance(item, BaseException):
+                raise item
+            out.append(item)
+
+    def wait(self) -> list[MappingResult]:
+        """Block until the mapping thread is idle; returns what it finished (see :meth:`collect`)."""
+        if self._thread is not None:
+            self._jobs.join()
+        return self.collect()
+
+    def close(self) -> None:
+        """Finish the queued work and stop the thread."""
+        if self._thread is not None:
+            self._jobs.join()
+            self._jobs.put(None)
+            self._thread.join()
+            self._thread = None
+
+    def _loop(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                self._jobs.task_done()
+                return
+            try:
+                self._done.put(self._step(job))
+            except BaseException as e:  # handed to the tracking thread, which re-raises it
+                self._done.put(e)
+            finally:
+                self._busy.clear()
+                self._jobs.task_done()
+
+    # ---- one mapping step (Sec. 4.3) ----------------------------------------------------------------------
+    def _step(self, job: MappingJob) -> MappingResult:
+        """Decode the keyframe, marginalise the oldest one if the window is full, add the new one (code zero,
+        tracked pose), match its keypoints with the window's, optimise the window jointly and roll the solve back
+        if it fails the window's checks. Marginalising before the solve keeps every solve at K keyframes (the
+        paper's "4-keyframes setup") and linearises the prior at the previous window's optimum."""
+        ms: dict[str, float] = {}
+        t0 = time.perf_counter()
+        kf = job.decode()
+        t1 = time.perf_counter()
+        ms["decode"] = 1e3 * (t1 - t0)
+        if self.parallel:  # the tracker may switch to the keyframe now, before the window solve
+            self._done.put(MappingResult(kf, None, None, job.frame_position, None, {"decode": ms["decode"]}))
+        marginalised = None
+        if self.window.is_full:  # the oldest keyframe becomes a linear prior on the others
+            marginalised = self.window.remove_oldest().id
+        t2 = time.perf_counter()
+        ms["marginalise"] = 1e3 * (t2 - t1)
+        self.window.add(kf)
+        self._match(kf, job.ref, job.sparse)
+        before = self.window.snapshot()
+        depth_before = {k.id: k.median_depth() for k in self.window.keyframes}
+        t3 = time.perf_counter()
+        report = self.window.optimise()  # all codes and poses, photometric + geometric + matched keypoints
+        if self.config.window.rollback:
+            report.rejected = self.window.check(before, depth_before)
+            if report.rejected:
+                self.window.restore(before)
+        self.refresh_points()
+        ms["window"] = 1e3 * (time.perf_counter() - t3)
+        self.updates += 1
+        if self.parallel:
+            del ms["decode"]  # handed over with the decoded keyframe already
+        return MappingResult(kf, report, marginalised, job.frame_position,
+                             before if self.config.window.rollback and not report.rejected else None, ms)
+
+    def _match(self, kf: MapKeyframe, ref: MapKeyframe | None, sparse: SparseTrack | None) -> None:
+        """Matched keypoints between the new keyframe and the window's others, for the window's reprojection
+        residuals: the tracking's inliers against its reference, guided matching at the current poses for the
+        rest."""
+        if kf.sparse is None or self.sparse is None:
+            return
+        for other in self.window.keyframes[:-1]:
+            if other.sparse is None:
+                continue
+            if ref is not None and other.id == ref.id and sparse is not None and sparse.ok:
+                ia, ib = sparse.point, sparse.frame_kp
+            else:
+                ia, ib = self.sparse.match_keyframes(other.sparse, kf.sparse.features,
+                                                     se3_inverse(kf.T_wc) @ other.T_wc)
+            if len(ia) >= self.config.features.min_inliers // 2:
+                self.window.matches[(other.id, kf.id)] = (ia, ib)
+
+    def refresh_points(self) -> None:
+        """The window's keyframe points follow their codes after a solve (a new array, not an in-place edit)."""
+        if self.sparse is None:
+            return
+        for k in self.window.keyframes:
+            if k.sparse is not None:
+                k.sparse.xyz = self.sparse.points(k.sparse.features, k.depth_map())
+
+    # ---- map maintenance from the tracking thread ----------------------------------------------------------
+    def roll_back(self, before: WindowSnapshot) -> None:
+        """Undo the last solve (sequential mode: the next frame could not be tracked after it)."""
+        self.window.restore(before)
+        self.refresh_points()
+
+    def restart(self, kf: MapKeyframe) -> None:
+        """Empty the window and make ``kf`` its first keyframe, the new gauge: a new map segment, or a
+        relocalisation against a keyframe that has left the window. The caller waits for the mapping thread
+        first (:meth:`wait`) and applies what it finished."""
+        self.window.reset()
+        self.window.add(kf)
+
+    def start(self, kf: MapKeyframe) -> None:
+        """The map's first keyframe."""
+        self.window.add(kf)
+
