@@ -25,6 +25,8 @@ for name in "$@"; do
     v3) data="$D/synth128_v3"; cfg=scripts/issue13/finetune.yaml ;;
     v3fx) data="$D/synth128_v3"; cfg=scripts/issue13/effects.yaml ;;
     v3fxreal) data="$D/synth128_v3 $REAL"; cfg=scripts/issue13/effects.yaml ;;
+    v3border) data="$D/synth128_v3"; cfg=scripts/issue13/border.yaml ;;
+    v3borderreal) data="$D/synth128_v3 $REAL"; cfg=scripts/issue13/border.yaml ;;
     eval-*) data=""; name=${name#eval-} ;;
     *) echo "unknown run $name"; exit 2 ;;
   esac
