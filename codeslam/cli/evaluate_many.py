@@ -18,6 +18,7 @@ from codeslam.cli.app import app
 from codeslam.cli.common import Device, Format, Frames, Quiet, Threads, Weights
 from codeslam.cli.slam import (
     DepthModelName,
+    MappingMode,
     SlamConfigFile,
     StandinSize,
     VideoCamera,
@@ -36,7 +37,7 @@ COLUMNS = (
     ("ate_se3_m", "ATE SE(3) [m]", "ate_se3_rmse", 4),
     ("ate_sim3_m", "ATE Sim(3) [m]", "ate_sim3_rmse", 4),
     ("never_moving_ate_m", "never-moving ATE [m]", "no_motion_ate_rmse_aligned", 4),
-    ("rot_err_deg", "rot. error [deg]", "rot_err_rmse_deg", 2),
+    ("rot_err_deg", "rot. error [deg]", "rot_aligned_rmse_deg", 2),
     ("rpe_trans_m", "RPE [m]", "rpe_trans_rmse", 4),
     ("rpe_rot_deg", "RPE [deg]", "rpe_rot_rmse_deg", 3),
     ("sim3_scale", "scale", "sim3_scale", 3),
@@ -113,6 +114,7 @@ def evaluate_command(
     depth_model: DepthModelName = "network",
     threads: Threads = None,
     size: StandinSize = "128x96",
+    sequential: MappingMode = True,
     camera: VideoCamera = None,
     fov: VideoFov = None,
     fps: VideoFps = None,
@@ -138,7 +140,7 @@ def evaluate_command(
     if given and not any(is_video):
         raise ConfigError(f"{', '.join(given)} apply to video files only, and no DATASET is one")
     names = run_names(datasets)
-    setup = setup_slam(config, weights, device, depth_model, size)
+    setup = setup_slam(config, weights, device, depth_model, size, sequential)
     opened = []  # every dataset opened (and checked) before the first run, so bad input fails at once
     for d, video in zip(datasets, is_video):
         options = video_options(d, fmt, camera, fov, fps, every) if video else {}

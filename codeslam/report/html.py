@@ -99,6 +99,8 @@ def metric_rows(s: dict) -> list[tuple[str, str, str]]:
         ("ATE RMSE, Sim(3) alignment [m]", _num(s.get("ate_sim3_rmse")) + f" (scale {_num(s.get('sim3_scale'), 3)})",
          _num(never)),
         ("ATE RMSE, unaligned, at the first pose [m]", "", _num(s.get("no_motion_ate_rmse"))),
+        ("orientation error after the best rotation alignment [deg]",
+         f"{_num(s.get('rot_aligned_rmse_deg'), 3)} RMSE, {_num(s.get('rot_aligned_max_deg'), 3)} max", ""),
         ("rotation error relative to the first frame [deg]",
          f"{_num(s.get('rot_err_rmse_deg'), 3)} RMSE, {_num(s.get('rot_err_max_deg'), 3)} max", ""),
         ("RPE per frame, translation [m]", _num(s.get("rpe_trans_rmse")), ""),

@@ -84,25 +84,30 @@ def run_slam(
     elif system.camera != camera:
         raise CodeSLAMError("the system runs in another camera than the one given to run_slam")
     visualizer = visualizer or Visualizer()
-    totals = dict.fromkeys(STAGES, 0.0)
-    results = []
+    results: list[FrameResult] = []
     process_s = 0.0
+    read_ms = 0.0
     t_start = time.perf_counter()
-    for n, i in enumerate(frames):
-        t0 = time.perf_counter()
-        frame = sequence[i]
-        t1 = time.perf_counter()
-        result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
+    try:
+        for n, i in enumerate(frames):
+            t0 = time.perf_counter()
+            frame = sequence[i]
+            t1 = time.perf_counter()
+            result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
+            process_s += time.perf_counter() - t1
+            read_ms += 1e3 * (t1 - t0)
+            results.append(result)
+            visualizer.update(frame, result, system)
+            if progress is not None:
+                progress(n + 1, len(frames), result)
         t2 = time.perf_counter()
-        process_s += t2 - t1
-        totals["read"] += 1e3 * (t1 - t0)
-        results.append(result)
-        visualizer.update(frame, result, system)
-        if progress is not None:
-            progress(n + 1, len(frames), result)
-    t3 = time.perf_counter()
-    system.finish()  # the mapping thread's last keyframe (parallel mode)
-    process_s += time.perf_counter() - t3
+        system.finish()  # the mapping thread's last keyframe (parallel mode)
+        process_s += time.perf_counter() - t2
+    except BaseException:
+        system.close()  # no mapping thread outlives a failed run
+        raise
+    totals = dict.fromkeys(STAGES, 0.0)
+    totals["read"] = read_ms
     for r in results:  # stage times once mapping has finished (a keyframe's mapping is added to its frame)
         for k, v in r.timings_ms.items():
             totals[k] = totals.get(k, 0.0) + v

@@ -379,7 +379,13 @@ class CodeSLAM:
 
     def finish(self) -> None:
         """Wait for the mapping thread to finish its work and stop it (parallel mode; a no-op otherwise)."""
-        self._apply(self.mapper.wait())
+        try:
+            self._apply(self.mapper.wait())
+        finally:
+            self.mapper.close()
+
+    def close(self) -> None:
+        """Stop the mapping thread without taking in its work (after an error)."""
         self.mapper.close()
 
     def _new_id(self) -> int:

@@ -1,0 +1,57 @@
+"""Parallel tracking and mapping (issue 12): the mapping thread gives the same frames tracked and an accuracy
+within a stated tolerance of the sequential (inline, deterministic) mode on a generator walk, shares the map
+without errors, and an error inside the mapping thread reaches the caller."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from slam_scene import MemorySequence, preset_frames
+
+from codeslam.eval.slam_run import evaluate_run
+from codeslam.slam.config import SLAMConfig
+from codeslam.slam.depth import standin_depth_model
+from codeslam.slam.pipeline import ground_truth, run_slam
+from codeslam.slam.system import CodeSLAM
+
+
+def _run(parallel: bool, frames=None, depth_model=None):
+    seq = MemorySequence(frames or preset_frames(21, 24, "walk", 10.0))
+    system = CodeSLAM(SLAMConfig(), depth_model or standin_depth_model(), parallel=parallel)
+    run = run_slam(seq, system, seq.frames[0].camera)
+    return system, run, evaluate_run(run.trajectory, ground_truth(seq, range(len(seq))))
+
+
+def test_parallel_mapping_tracks_the_same_frames_within_tolerance():
+    _, seq_run, seq_ev = _run(False)
+    system, par_run, par_ev = _run(True)
+    assert [r.tracking_ok for r in par_run.results] == [r.tracking_ok for r in seq_run.results]
+    assert all(r.tracking_ok for r in par_run.results)
+    # Tolerance. The tracker does not wait for the mapping thread, so while it is busy no keyframe is taken and
+    # the keyframes are sparser (measured: 5 instead of 7 on these 24 frames, frames 0 5 12 15 22 against 0 5 9
+    # 13 16 19 22), and the trajectory is less accurate: measured 0.050 m (2.2% of the 2.3 m path) against
+    # 0.016 m (0.7%). Stated tolerance: sequential within 1% of the path, parallel within 3%.
+    path = seq_ev["path_length_gt"]
+    assert seq_ev["ate_sim3_rmse"] <= 0.01 * path, seq_ev["ate_sim3_rmse"]
+    assert par_ev["ate_sim3_rmse"] <= 0.03 * path, (par_ev["ate_sim3_rmse"], seq_ev["ate_sim3_rmse"])
+    assert len(par_run.keyframes) >= 2 and system.mapper.updates >= 1
+    # Every keyframe's frame is flagged, with its window solve, once mapping has finished.
+    kf_frames = {k.frame_index for k in par_run.keyframes}
+    assert {r.index for r in par_run.results if r.is_keyframe} == kf_frames
+    assert all(r.window is not None for r in par_run.results if r.is_keyframe and r.index != 0)
+    assert system.mapper._thread is None  # stopped by run_slam
+
+
+def test_an_error_in_the_mapping_thread_reaches_the_caller():
+    factory = standin_depth_model()
+    calls = {"n": 0}
+
+    def failing(frame):
+        calls["n"] += 1
+        if calls["n"] == 2:  # the first keyframe is decoded inline, the second on the mapping thread
+            raise RuntimeError("decoder exploded")
+        return factory(frame)
+
+    with pytest.raises(RuntimeError, match="decoder exploded"):
+        _run(True, depth_model=failing)
+    assert bool(torch.tensor(calls["n"] >= 2))
