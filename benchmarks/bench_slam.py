@@ -1,140 +1,152 @@
-"""Speed and accuracy of the SLAM system (paper Sec. 4.3) on a synthetic sequence or a dataset folder.
+"""Speed of the SLAM system, sequential against parallel mapping, in one run (issue 12).
 
-For each variant (the default system, and with ``--compare`` the same without marginalisation, where the oldest
-keyframe's terms are dropped instead of becoming a prior) it reports frames per wall-clock and per CPU second,
-the mean time per frame of every stage (tracking, decoding, marginalisation, window optimisation), the window
-optimisation time per keyframe, and against ground truth ATE (SE(3) and Sim(3) alignment), the orientation
-error relative to the first frame and the no-motion baselines.
+For each sequence (a real one, by default ``../shared/data/tum_fr1_rpy``, and a generator preset rendered in
+memory, by default the walk at 10 frames/s) and each mapping mode it runs the whole system in a fresh process
+(so peak memory is that run's) and prints:
 
-    python benchmarks/bench_slam.py [--dataset DIR] [--seed 3 --frames 60 --fps 30] [--size 128x96]
-                                    [--depth-model standin|network] [--weights FILE] [--device cpu]
-                                    [--threads 1] [--compare]
+* frames per second of the whole loop, reading included (and of the system alone);
+* per-frame stages (read, resample, features, track) and per-keyframe stages (decode, marginalise, window): median
+  and 90th percentile in ms;
+* map updates (window solves) per second of wall time, keyframes, failed frames;
+* peak resident memory (MB);
+* ATE Sim(3) and the orientation error after the best rotation alignment, so a speed-up is read beside what it
+  costs;
 
-Without ``--dataset`` the sequence is rendered in memory by the generator (the room and trajectory of
-``codeslam synth OUT --scenes 1 --seed S``, rendered as that command renders, without the PNG quantisation).
-The stand-in depth model is an oracle built from the true depth (see :mod:`codeslam.slam.depth`); with trained
-weights use ``--depth-model network``.
-Prints a table, asserts nothing. On a machine shared with other jobs the wall-clock rate varies run to run, the
-CPU rate much less.
+and the ratios parallel / sequential of the whole-loop rate. Nothing is asserted.
+
+    python benchmarks/bench_slam.py [--dataset DIR] [--frames N] [--preset walk --preset-fps 10
+                                    --preset-frames 60 --size 320x240] [--depth-model network|standin]
+                                    [--threads 2] [--modes sequential parallel]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import multiprocessing as mp
+import resource
+import sys
 import time
-from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
-import torch
 
-from codeslam.data.frame import Frame, resample_frame
-from codeslam.eval.slam_run import evaluate_run
-from codeslam.geometry.camera import canonical_camera
-from codeslam.slam.config import SLAMConfig, load_config
-from codeslam.slam.pipeline import ground_truth, run_slam
-from codeslam.slam.system import CodeSLAM
+REPO = Path(__file__).resolve().parents[1]
+PER_FRAME = ("read", "resample", "features", "track", "relocalise")
+PER_KEYFRAME = ("decode", "marginalise", "window")
 
 
-class _Frames:
-    """A minimal in-memory sequence (what :func:`run_slam` needs)."""
+def _sequence(spec: dict):
+    """The sequence to run: a dataset folder, or a generator preset rendered in memory (cached in the parent)."""
+    from codeslam.data.registry import open_dataset
 
-    def __init__(self, frames: list[Frame]) -> None:
-        self.frames = frames
-        self.timestamps = np.array([f.timestamp for f in frames])
-        has_pose = all(f.pose is not None for f in frames)
-        self.gt_poses = torch.stack([f.pose for f in frames]) if has_pose else None
+    if spec["kind"] == "dataset":
+        return open_dataset(spec["path"])
+    sys.path.insert(0, str(REPO / "tests" / "slam"))
+    from slam_scene import MemorySequence, preset_frames  # the test helper renders presets in memory
 
-    def __len__(self) -> int:
-        return len(self.frames)
-
-    def __getitem__(self, i: int) -> Frame:
-        return self.frames[i]
+    w, h = (int(v) for v in spec["size"].split("x"))
+    return MemorySequence(preset_frames(spec["seed"], spec["frames"], spec["preset"], spec["fps"], w, h))
 
 
-def synthetic_sequence(seed: int, frames: int, fps: float, width: int, height: int) -> _Frames:
-    from codeslam.synth.generate import scene_seed
-    from codeslam.synth.render import RenderConfig, render
-    from codeslam.synth.scene import build_scene
-    from codeslam.synth.trajectory import random_trajectory
+def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
+    import torch
 
-    s = scene_seed(seed, 0)  # the room of `codeslam synth OUT --scenes 1 --seed SEED`
-    scene = build_scene(s)
-    poses = random_trajectory(scene, frames, np.random.default_rng(np.random.SeedSequence([s, 0x7247])), fps=fps)
-    cam = canonical_camera(width, height)
-    images, depths = [], []
-    for a in range(0, frames, 8):
-        img, dep = render(scene, cam, poses[a:a + 8], RenderConfig(supersample=2))  # as the CLI
-        images.append(img)
-        depths.append(dep)
-    image, depth = torch.cat(images), torch.cat(depths)
-    return _Frames([Frame(1000.0 + i / fps, image[i], cam, depth[i], poses[i], i) for i in range(frames)])
+    from codeslam.eval.slam_run import evaluate_run_if_possible
+    from codeslam.slam.config import SLAMConfig
+    from codeslam.slam.pipeline import ground_truth, run_slam
+    from codeslam.slam.system import CodeSLAM
+
+    torch.set_num_threads(args["threads"])
+    seq = _sequence(spec)
+    n = min(len(seq), spec.get("limit") or len(seq))
+    if args["depth_model"] == "network":
+        from codeslam.depthmodel import DepthModel
+        from codeslam.slam.depth import network_depth_model
+
+        model = DepthModel.load()
+        factory, camera = network_depth_model(model), model.camera
+    else:
+        from codeslam.geometry.camera import canonical_camera
+        from codeslam.slam.depth import standin_depth_model
+
+        factory, camera = standin_depth_model(), canonical_camera()
+    system = CodeSLAM(SLAMConfig(), factory, parallel=(mode == "parallel"))
+    t0 = time.perf_counter()
+    run = run_slam(seq, system, camera, list(range(n)))
+    wall = time.perf_counter() - t0
+    stages = {}
+    for k in PER_FRAME:
+        v = [r.timings_ms.get(k, 0.0) for r in run.results]
+        stages[k] = (float(np.median(v)), float(np.percentile(v, 90)))
+    kf_results = [r for r in run.results if r.is_keyframe and r.window is not None]
+    for k in PER_KEYFRAME:
+        v = [r.timings_ms.get(k, 0.0) for r in kf_results] or [0.0]
+        stages[k] = (float(np.median(v)), float(np.percentile(v, 90)))
+    ev = evaluate_run_if_possible(run.trajectory, ground_truth(seq, list(range(n))))
+    out.put({
+        "frames": n, "fps": n / wall, "fps_system": run.fps, "keyframes": len(run.keyframes),
+        "updates_per_s": system.mapper.updates / wall, "failed": sum(not r.tracking_ok for r in run.results),
+        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "stages": stages,
+        "ate_sim3": ev.get("ate_sim3_rmse"), "rot_deg": ev.get("rot_aligned_rmse_deg"),
+    })
 
 
-def run_variant(name: str, seq, cfg: SLAMConfig, factory, camera) -> dict:
-    system = CodeSLAM(cfg, factory)
-    c0 = time.process_time()
-    run = run_slam(seq, system, camera)
-    cpu = time.process_time() - c0
-    n = len(run.results)
-    out = {"variant": name, "frames": n, "keyframes": len(run.keyframes),
-           "failures": sum(not r.tracking_ok for r in run.results), "fps": run.fps, "fps_cpu": n / cpu,
-           **{f"ms_{k}": v / n for k, v in run.timings_ms.items() if k in ("track", "decode", "marginalise", "window")},
-           "ms_window_per_kf": run.timings_ms["window"] / max(len(run.keyframes) - 1, 1)}
-    gt = ground_truth(seq, range(n))
-    if gt is not None:
-        out.update(evaluate_run(run.trajectory, gt))
-    return out
+def measure(spec: dict, mode: str, args: dict) -> dict:
+    ctx = mp.get_context("spawn")  # a fresh process per run: its own peak memory, no state shared
+    q = ctx.Queue()
+    p = ctx.Process(target=_run, args=(spec, mode, args, q))
+    p.start()
+    result = q.get()
+    p.join()
+    return result
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--dataset", default=None, help="a dataset folder instead of the rendered sequence")
-    ap.add_argument("--seed", type=int, default=3)
-    ap.add_argument("--frames", type=int, default=60)
-    ap.add_argument("--fps", type=float, default=30.0, help="frame rate of the rendered trajectory")
-    ap.add_argument("--size", default="128x96")
-    ap.add_argument("--depth-model", default="standin", choices=("standin", "network"))
-    ap.add_argument("--weights", default=None)
-    ap.add_argument("--config", default=None, help="YAML overlay of the SLAM configuration")
-    ap.add_argument("--device", default="cpu")
-    ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--compare", action="store_true", help="also run without marginalisation")
-    args = ap.parse_args()
-    torch.set_num_threads(args.threads)
-    w, h = (int(v) for v in args.size.split("x"))
-    cfg = replace(load_config(args.config), device=args.device)
-    if args.depth_model == "network":
-        from codeslam.depthmodel import DepthModel
-        from codeslam.slam.depth import network_depth_model
-
-        model = DepthModel.load(args.weights, device=args.device)
-        factory, camera = network_depth_model(model), model.camera
-    else:
-        from codeslam.slam.depth import standin_depth_model
-
-        factory, camera = standin_depth_model(num_levels=cfg.decoder_levels), canonical_camera(w, h)
-    if args.dataset:
-        from codeslam.data.registry import open_dataset
-
-        ds = open_dataset(args.dataset)
-        frames = [resample_frame(ds[i], camera) for i in range(min(args.frames, len(ds)))]
-        seq = _Frames(frames)
-    else:
-        seq = synthetic_sequence(args.seed, args.frames, args.fps, camera.width, camera.height)
-    variants = [("default", cfg)]
-    if args.compare:
-        variants.append(("no marginalisation", replace(cfg, window=replace(cfg.window, marginalise=False))))
-    rows = [run_variant(name, seq, c, factory, camera) for name, c in variants]
-    print(f"{len(seq)} frames at {camera.width}x{camera.height}, depth model {args.depth_model}, "
-          f"device {args.device}, {args.threads} thread(s)")
-    keys = ["frames", "keyframes", "failures", "fps", "fps_cpu", "ms_track", "ms_decode", "ms_marginalise",
-            "ms_window", "ms_window_per_kf", "ate_se3_rmse", "ate_sim3_rmse", "sim3_scale", "rot_err_rmse_deg",
-            "rpe_rot_rmse_deg", "drift_end_error", "no_motion_ate_rmse", "no_motion_ate_rmse_aligned",
-            "path_length_gt"]
-    print(f"{'':28s}" + "".join(f"{r['variant']:>22s}" for r in rows))
-    for k in keys:
-        vals = [r.get(k) for r in rows]
-        print(f"{k:28s}" + "".join(f"{v:>22.4f}" if isinstance(v, float) else f"{v!s:>22s}" for v in vals))
+    ap.add_argument("--dataset", default=str(REPO.parent / "shared" / "data" / "tum_fr1_rpy"))
+    ap.add_argument("--frames", type=int, default=None, help="at most this many frames of the dataset")
+    ap.add_argument("--preset", default="walk", help="generator preset ('' to skip)")
+    ap.add_argument("--preset-fps", type=float, default=10.0)
+    ap.add_argument("--preset-frames", type=int, default=60)
+    ap.add_argument("--size", default="320x240", help="the preset's rendered image size")
+    ap.add_argument("--seed", type=int, default=21)
+    ap.add_argument("--depth-model", default="network", choices=("network", "standin"))
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--modes", nargs="+", default=["sequential", "parallel"])
+    ap.add_argument("--json", default=None, help="also write the measurements here")
+    a = ap.parse_args()
+    args = {"threads": a.threads, "depth_model": a.depth_model}
+    specs = []
+    if a.dataset:
+        specs.append(({"kind": "dataset", "path": a.dataset, "limit": a.frames}, Path(a.dataset).name))
+    if a.preset:
+        specs.append(({"kind": "preset", "preset": a.preset, "fps": a.preset_fps, "frames": a.preset_frames,
+                       "size": a.size, "seed": a.seed}, f"{a.preset}@{a.preset_fps:g}fps"))
+    table = {}
+    for spec, name in specs:
+        for mode in a.modes:
+            table[(name, mode)] = measure(spec, mode, args)
+    print(f"depth model {a.depth_model}, {a.threads} torch thread(s)")
+    cols = [f"{name} {mode}" for name, mode in table]
+    print(f"{'':24s}" + "".join(f"{c:>28s}" for c in cols))
+    rows = [("frames", "frames", "{:d}"), ("frames/s (whole loop)", "fps", "{:.2f}"),
+            ("frames/s (system)", "fps_system", "{:.2f}"), ("keyframes", "keyframes", "{:d}"),
+            ("map updates/s", "updates_per_s", "{:.2f}"), ("failed frames", "failed", "{:d}"),
+            ("peak memory MB", "peak_mb", "{:.0f}"), ("ATE Sim(3) m", "ate_sim3", "{:.4f}"),
+            ("orientation deg", "rot_deg", "{:.2f}")]
+    for label, key, fmt in rows:
+        vals = [r.get(key) for r in table.values()]
+        print(f"{label:24s}" + "".join(f"{(fmt.format(v) if v is not None else 'n/a'):>28s}" for v in vals))
+    for st in PER_FRAME + PER_KEYFRAME:
+        vals = [r["stages"][st] for r in table.values()]
+        print(f"{st + ' ms med/p90':24s}" + "".join(f"{f'{m:.1f} / {p:.1f}':>28s}" for m, p in vals))
+    for _, name in specs:
+        if (name, "sequential") in table and (name, "parallel") in table:
+            r = table[(name, "parallel")]["fps"] / table[(name, "sequential")]["fps"]
+            print(f"{name}: parallel / sequential frames per second = {r:.2f}")
+    if a.json:
+        Path(a.json).write_text(json.dumps({f"{k[0]} {k[1]}": v for k, v in table.items()}, indent=1))
 
 
 if __name__ == "__main__":

@@ -86,7 +86,6 @@ def run_slam(
     visualizer = visualizer or Visualizer()
     results: list[FrameResult] = []
     process_s = 0.0
-    read_ms = 0.0
     t_start = time.perf_counter()
     try:
         for n, i in enumerate(frames):
@@ -95,7 +94,7 @@ def run_slam(
             t1 = time.perf_counter()
             result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
             process_s += time.perf_counter() - t1
-            read_ms += 1e3 * (t1 - t0)
+            result.timings_ms["read"] = 1e3 * (t1 - t0)
             results.append(result)
             visualizer.update(frame, result, system)
             if progress is not None:
@@ -107,7 +106,6 @@ def run_slam(
         system.close()  # no mapping thread outlives a failed run
         raise
     totals = dict.fromkeys(STAGES, 0.0)
-    totals["read"] = read_ms
     for r in results:  # stage times once mapping has finished (a keyframe's mapping is added to its frame)
         for k, v in r.timings_ms.items():
             totals[k] = totals.get(k, 0.0) + v
