@@ -117,6 +117,9 @@ class FeatureConfig:
     pyramid's scale factor per octave."""
     weight: float = 1.0
     """Weight of the reprojection residuals in the alignment (0: features give the initial pose only)."""
+    min_agreement: float = 0.5
+    """When the aligned pose keeps fewer than this fraction of PnP's inliers, the alignment has left the pose the
+    matches agree on, and the PnP pose is taken instead."""
 
     def __post_init__(self) -> None:
         if self.scale < 1:
@@ -130,6 +133,8 @@ class FeatureConfig:
                 raise ConfigError(f"features.{name} must be positive, got {getattr(self, name)}")
         if not self.weight >= 0 or not 0 <= self.max_hamming <= 256 or not 0 <= self.fast_threshold <= 255:
             raise ConfigError("features.weight must be >= 0, max_hamming in [0, 256], fast_threshold in [0, 255]")
+        if not 0.0 <= self.min_agreement <= 1.0:
+            raise ConfigError(f"features.min_agreement must lie in [0, 1], got {self.min_agreement}")
         if self.ransac_iterations < 1:
             raise ConfigError(f"features.ransac_iterations must be >= 1, got {self.ransac_iterations}")
 

@@ -230,6 +230,9 @@ class CodeSLAM:
         frames_since = len(self._records) - self._keyframe_record.get(ref.id, len(self._records) - 1)
         decision = decide_keyframe(track.T_kf, ref.median_depth(), track.overlap, frames_since, True,
                                    self.config.keyframes)
+        if decision.add and track.photometric_reason and track.overlap >= self.config.keyframes.urgent_overlap:
+            # a frame the photometric alignment could not explain makes a poor keyframe: wait for a better one
+            decision = dataclasses.replace(decision, add=False, reason="poor photometric fit")
         if decision.add and self.mapper.busy:  # PTAM: the mapping thread is still on the last keyframe
             kcfg = self.config.keyframes
             urgent = (decision.overlap < kcfg.urgent_overlap or decision.baseline_ratio >= 2 * kcfg.min_baseline_ratio
@@ -270,10 +273,15 @@ class CodeSLAM:
                                    min_feature_inliers=fcfg.min_inliers if term is not None else 0,
                                    feature_threshold=fcfg.pnp_threshold,
                                    T_kf_prior=T_kf_guess if len(self._records) >= 2 else None)
+        source = "direct"
         if term is not None:
             source = "direct+features" if not track.photometric_reason else "features"
-        else:
-            source = "direct"
+            if track.ok and track.feature_inliers < fcfg.min_agreement * sparse.num_inliers:
+                # The alignment left the pose the matches agree on (measured on the HoloLens walk: a frame kept
+                # 3 of 39 matches and, made a keyframe, turned the map by degrees): the matches' pose instead.
+                track = dataclasses.replace(track, T_kf=sparse.T_kf, feature_inliers=sparse.num_inliers,
+                                            photometric_reason=track.photometric_reason or "left the matches' pose")
+                source = "features"
         return track, sparse, source
 
     def _relocalise(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor):

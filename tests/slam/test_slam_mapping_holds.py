@@ -84,8 +84,11 @@ def test_window_check_rejects_a_solve_that_moves_the_map_away():
     assert "rotation" in win.check(snap, depth)
     win.restore(snap)
     assert torch.equal(last.T_wc, snap.values[last.id][0]) and win.check(snap, depth) == ""
-    last.code = last.code + 50.0  # a code that changes the keyframe's depth scale
-    assert "depth" in win.check(snap, depth) or "non-finite" in win.check(snap, depth)
+    # A keyframe whose median depth the solve changed by a factor 5 (beyond the allowed factor 3).
+    assert "median depth" in win.check(snap, {**depth, last.id: 5.0 * depth[last.id]})
+    assert win.check(snap, {**depth, last.id: 1.5 * depth[last.id]}) == ""  # a factor 1.5 is reconciled, kept
+    last.code = last.code * float("nan")
+    assert "non-finite" in win.check(snap, depth)
 
 
 def test_a_lost_camera_is_relocalised_or_restarts_and_the_log_says_so(tmp_path):
