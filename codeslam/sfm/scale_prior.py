@@ -44,25 +44,25 @@ class DepthScalePrior:
 
     def __post_init__(self) -> None:
         prox0 = self.level.prox0[:, 0]  # (F, H, W)
-        self._valid = torch.isfinite(prox0) & (prox0 > 0)
-        a = self.level.avg_depth
-        self._target = [self._mean_log_depth(k, prox0[k], a[k]) for k in self.frames]
+        valid = torch.isfinite(prox0) & (prox0 > 0)
+        # The valid pixels of each frame's proximity and code Jacobian, gathered once: (M,) and (C, M).
+        self._p0 = {k: prox0[k][valid[k]] for k in self.frames}
+        self._jac = {k: self.level.jac[k][:, valid[k]] for k in self.frames}
+        self._target = [self._mean_log_depth(self._p0[k], self.level.avg_depth[k]) for k in self.frames]
 
-    def _mean_log_depth(self, k: int, prox: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
-        d = prox_to_depth(prox, a)[self._valid[k]]
-        return torch.log(d.clamp_min(1e-6)).mean()
+    @staticmethod
+    def _mean_log_depth(prox: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        return torch.log(prox_to_depth(prox, a).clamp_min(1e-6)).mean()
 
     def _residual(self, state: SfMState, k: int, target: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """-> r (scalar) and dr/dc_k (C,) of frame k."""
-        lvl = self.level
-        code = state.codes[k].to(lvl.jac.dtype)
-        prox = lvl.prox0[k, 0] + torch.einsum("chw,c->hw", lvl.jac[k], code)  # p0 + J c
-        a = lvl.avg_depth[k]
-        m = self._mean_log_depth(k, prox, a)
-        valid = self._valid[k]
+        jac = self._jac[k]
+        prox = self._p0[k] + state.codes[k].to(jac.dtype) @ jac  # (M,) p0 + J c
+        a = self.level.avg_depth[k]
+        m = self._mean_log_depth(prox, a)
         d = prox_to_depth(prox, a).clamp_min(1e-6)
-        dlog = (d_depth_d_prox(prox, a) / d)[valid]  # (M,) d log D / dp
-        grad = torch.einsum("cm,m->c", lvl.jac[k][:, valid], dlog) / dlog.numel()  # (C,) dm/dc
+        dlog = d_depth_d_prox(prox, a) / d  # (M,) d log D / dp
+        grad = jac @ dlog / dlog.numel()  # (C,) dm/dc
         return (m - target) / self.sigma, grad / self.sigma
 
     def cost(self, state: SfMState) -> torch.Tensor:
