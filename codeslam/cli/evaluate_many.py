@@ -11,21 +11,12 @@ from __future__ import annotations
 import csv
 import io
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from codeslam.cli.app import app
-from codeslam.cli.common import Device, Format, Frames, Quiet, Threads, Weights
-from codeslam.cli.slam import (
-    DepthModelName,
-    MappingMode,
-    SlamConfigFile,
-    StandinSize,
-    VideoCamera,
-    VideoEvery,
-    VideoFov,
-    VideoFps,
-)
+from codeslam.cli.slam import RunOptions, with_run_options
 from codeslam.errors import ConfigError
 
 #: The table's columns: (CSV name, Markdown header, summary key, decimals in Markdown). Without ground truth the
@@ -102,24 +93,12 @@ def results_markdown(rows: list[dict], settings: str) -> str:
 
 
 @app.command("evaluate")
+@with_run_options
 def evaluate_command(
-    datasets: list[Path] = typer.Argument(..., help="Dataset folders or video files, one run each."),
-    out: Path = typer.Option(Path("evaluate_out"), "--out", help="Output folder: a run folder per dataset, "
-                             "results.md and results.csv."),
-    fmt: Format = None,
-    frames: Frames = None,
-    weights: Weights = None,
-    config: SlamConfigFile = None,
-    device: Device = None,
-    depth_model: DepthModelName = "network",
-    threads: Threads = None,
-    size: StandinSize = "128x96",
-    sequential: MappingMode = True,
-    camera: VideoCamera = None,
-    fov: VideoFov = None,
-    fps: VideoFps = None,
-    every: VideoEvery = None,
-    quiet: Quiet = False,
+    datasets: Annotated[list[Path], typer.Argument(help="Dataset folders or video files, one run each.")],
+    out: Annotated[Path, typer.Option("--out", help="Output folder: a run folder per dataset, results.md and "
+                                      "results.csv.")] = Path("evaluate_out"),
+    opts: RunOptions = RunOptions(),
 ) -> None:
     """Run SLAM on every DATASET with the same settings and write one table of frames, failed frames, ATE (SE(3),
     Sim(3)) beside the never-moving camera's, rotation error, RPE, scale and frames per second: DIR/results.md and
@@ -131,34 +110,37 @@ def evaluate_command(
     from codeslam.data.video import is_video_file
     from codeslam.io import atomic_write, check_output_dir, check_output_file
 
-    set_threads(threads)
+    o = opts
+    set_threads(o.threads)
     check_output_dir(out)
     for name in (RESULTS_MD, RESULTS_CSV):
         check_output_file(out / name)
-    is_video = [fmt == "video" or (fmt is None and Path(d).is_file() and is_video_file(d)) for d in datasets]
-    given = [f"--{k}" for k, v in (("camera", camera), ("fov", fov), ("fps", fps), ("every", every)) if v is not None]
+    is_video = [o.fmt == "video" or (o.fmt is None and Path(d).is_file() and is_video_file(d)) for d in datasets]
+    video_given = (("camera", o.camera), ("fov", o.fov), ("fps", o.fps), ("every", o.every))
+    given = [f"--{k}" for k, v in video_given if v is not None]
     if given and not any(is_video):
         raise ConfigError(f"{', '.join(given)} apply to video files only, and no DATASET is one")
     names = run_names(datasets)
-    setup = setup_slam(config, weights, device, depth_model, size, sequential)
+    setup = setup_slam(o.config, o.weights, o.device, o.depth_model, o.size, o.sequential)
     opened = []  # every dataset opened (and checked) before the first run, so bad input fails at once
     for d, video in zip(datasets, is_video):
-        options = video_options(d, fmt, camera, fov, fps, every) if video else {}
-        opened.append(open_frames(d, fmt, frames, min_frames=2, what="SLAM", increasing=True, options=options))
-        if depth_model == "standin" and not opened[-1][0].has_depth:
+        options = video_options(d, o.fmt, o.camera, o.fov, o.fps, o.every) if video else {}
+        opened.append(open_frames(d, o.fmt, o.frames, min_frames=2, what="SLAM", increasing=True,
+                                  options=options))
+        if o.depth_model == "standin" and not opened[-1][0].has_depth:
             raise ConfigError(f"--depth-model standin needs datasets with depth maps; {d} has none")
     console = Console(stderr=True)
     summaries = []
     for k, (d, name, (seq, indices)) in enumerate(zip(datasets, names, opened), start=1):
-        if not quiet:
+        if not o.quiet:
             console.print(f"[bold]{k}/{len(datasets)}[/bold] {name}: {len(indices)} frames of {d}")
-        summaries.append(run_to_folder(seq, indices, d, out / name, setup, quiet=quiet,
+        summaries.append(run_to_folder(seq, indices, d, out / name, setup, quiet=o.quiet,
                                        label=f"slam {k}/{len(datasets)}"))
     rows = table_rows(names, summaries)
     settings = (f"Settings of every run: depth model {setup.model_info.get('depth_model')}"
                 + (f", weights {setup.model_info['weights']}" if "weights" in setup.model_info else "")
-                + f", config {config or 'default'}, device {setup.cfg.device}"
-                + (f", frames {frames}" if frames else "") + ".")
+                + f", config {o.config or 'default'}, device {setup.cfg.device}, {setup.model_info['mapping']} "
+                "mapping" + (f", frames {o.frames}" if o.frames else "") + ".")
     with atomic_write(out / RESULTS_CSV) as f:
         f.write(results_csv(rows))
     with atomic_write(out / RESULTS_MD) as f:

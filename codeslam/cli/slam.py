@@ -4,6 +4,8 @@ and (with ground truth) its evaluation. A thin shell over :func:`codeslam.slam.p
 
 from __future__ import annotations
 
+import functools
+import inspect
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -37,6 +39,54 @@ VideoFov = Annotated[float | None, typer.Option(
     "(default 60, stated in the summary and report).")]
 VideoFps = Annotated[float | None, typer.Option("--fps", help="Video: keep at most this many frames per second.")]
 VideoEvery = Annotated[int | None, typer.Option("--every", help="Video: keep every N-th frame (after --fps).")]
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """The options every SLAM run of ``slam`` and ``evaluate`` takes, defined once (:func:`with_run_options`)."""
+
+    fmt: str | None = None
+    frames: str | None = None
+    weights: Path | None = None
+    config: Path | None = None
+    device: str | None = None
+    depth_model: str = "network"
+    threads: int | None = None
+    size: str = "128x96"
+    sequential: bool = True
+    camera: Path | None = None
+    fov: float | None = None
+    fps: float | None = None
+    every: int | None = None
+    quiet: bool = False
+
+
+# (name, type with its typer option, default) of every RunOptions field, in the order --help lists them.
+_RUN_OPTION_TYPES = (
+    ("fmt", Format), ("frames", Frames), ("weights", Weights), ("config", SlamConfigFile), ("device", Device),
+    ("depth_model", DepthModelName), ("threads", Threads), ("size", StandinSize), ("sequential", MappingMode),
+    ("camera", VideoCamera), ("fov", VideoFov), ("fps", VideoFps), ("every", VideoEvery), ("quiet", Quiet),
+)
+
+
+def with_run_options(command):
+    """Give a command the options of :class:`RunOptions` (appended to its signature, so typer lists them) and
+    call it with them gathered in one ``opts: RunOptions`` argument: the two commands that run SLAM declare them
+    once, here."""
+    sig = inspect.signature(command, eval_str=True)
+    defaults = RunOptions()
+    extra = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY, default=getattr(defaults, name), annotation=t)
+             for name, t in _RUN_OPTION_TYPES]
+    params = [p for p in sig.parameters.values() if p.name != "opts"] + extra
+
+    @functools.wraps(command)
+    def wrapper(**kwargs):
+        opts = RunOptions(**{name: kwargs.pop(name) for name, _ in _RUN_OPTION_TYPES})
+        return command(opts=opts, **kwargs)
+
+    wrapper.__signature__ = sig.replace(parameters=params)
+    wrapper.__annotations__ = {p.name: p.annotation for p in params}
+    return wrapper
 
 
 @dataclass
@@ -140,25 +190,13 @@ def run_to_folder(seq, indices: list[int], dataset: Path, out: Path, setup: Slam
 
 
 @app.command("slam")
+@with_run_options
 def slam_command(
     dataset: DatasetArg,
     out: OutDir = Path("slam_out"),
-    fmt: Format = None,
-    frames: Frames = None,
-    weights: Weights = None,
-    config: SlamConfigFile = None,
     json_out: JsonOut = None,
-    viewer: str = typer.Option("none", "--viewer", help="Live viewer: none or rerun (needs rerun-sdk)."),
-    device: Device = None,
-    depth_model: DepthModelName = "network",
-    threads: Threads = None,
-    size: StandinSize = "128x96",
-    sequential: MappingMode = True,
-    camera: VideoCamera = None,
-    fov: VideoFov = None,
-    fps: VideoFps = None,
-    every: VideoEvery = None,
-    quiet: Quiet = False,
+    viewer: Annotated[str, typer.Option("--viewer", help="Live viewer: none or rerun (needs rerun-sdk).")] = "none",
+    opts: RunOptions = RunOptions(),
 ) -> None:
     """Dense monocular SLAM (paper Sec. 4): track, select keyframes, optimise a sliding window of depth codes and
     poses, marginalise old keyframes. DATASET is a dataset folder or a video file (a phone's MP4: --camera
@@ -171,12 +209,14 @@ def slam_command(
 
     if viewer not in VIEWERS:
         raise ConfigError(f"--viewer must be one of {', '.join(VIEWERS)}, got {viewer!r}")
-    set_threads(threads)
+    o = opts
+    set_threads(o.threads)
     check_outputs(out, json_out)  # refuse bad output paths before any work
-    options = video_options(dataset, fmt, camera, fov, fps, every)
-    setup = setup_slam(config, weights, device, depth_model, size, sequential)
-    seq, indices = open_frames(dataset, fmt, frames, min_frames=2, what="SLAM", increasing=True, options=options)
-    summary = run_to_folder(seq, indices, dataset, out, setup, viewer, quiet)
+    options = video_options(dataset, o.fmt, o.camera, o.fov, o.fps, o.every)
+    setup = setup_slam(o.config, o.weights, o.device, o.depth_model, o.size, o.sequential)
+    seq, indices = open_frames(dataset, o.fmt, o.frames, min_frames=2, what="SLAM", increasing=True,
+                               options=options)
+    summary = run_to_folder(seq, indices, dataset, out, setup, viewer, o.quiet)
     _print_summary(summary, out)
     if json_out is not None:
         write_json(json_out, summary)
