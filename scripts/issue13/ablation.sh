@@ -27,6 +27,9 @@ for name in "$@"; do
     v3fxreal) data="$D/synth128_v3 $REAL"; cfg=scripts/issue13/effects.yaml ;;
     v3border) data="$D/synth128_v3"; cfg=scripts/issue13/border.yaml ;;
     v3borderreal) data="$D/synth128_v3 $REAL"; cfg=scripts/issue13/border.yaml ;;
+    v13borderreal) data="$D/synth128_v1 $D/synth128_v3 $REAL"; cfg=scripts/issue13/border.yaml ;;
+    v13fxreal) data="$D/synth128_v1 $D/synth128_v3 $REAL"; cfg=scripts/issue13/effects.yaml ;;
+    final) data="$D/synth128_v1 $D/synth128_v3 $REAL"; cfg=scripts/issue13/final.yaml ;;
     eval-*) data=""; name=${name#eval-} ;;
     *) echo "unknown run $name"; exit 2 ;;
   esac
