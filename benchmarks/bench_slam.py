@@ -16,7 +16,7 @@ and the ratios parallel / sequential of the whole-loop rate. Nothing is asserted
 
     python benchmarks/bench_slam.py [--dataset DIR] [--frames N] [--preset walk --preset-fps 10
                                     --preset-frames 60 --size 320x240] [--depth-model network|standin]
-                                    [--threads 2] [--modes sequential parallel]
+                                    [--threads 2] [--modes sequential parallel] [--weights W]
 """
 
 from __future__ import annotations
@@ -64,7 +64,7 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
         from codeslam.depthmodel import DepthModel
         from codeslam.slam.depth import network_depth_model
 
-        model = DepthModel.load()
+        model = DepthModel.load(args["weights"])
         factory, camera = network_depth_model(model), model.camera
     else:
         from codeslam.geometry.camera import canonical_camera
@@ -113,10 +113,11 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--depth-model", default="network", choices=("network", "standin"))
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--weights", default=None, help="network weights (default: the shipped ones)")
     ap.add_argument("--modes", nargs="+", default=["sequential", "parallel"])
     ap.add_argument("--json", default=None, help="also write the measurements here")
     a = ap.parse_args()
-    args = {"threads": a.threads, "depth_model": a.depth_model}
+    args = {"threads": a.threads, "depth_model": a.depth_model, "weights": a.weights}
     specs = []
     if a.dataset:
         specs.append(({"kind": "dataset", "path": a.dataset, "limit": a.frames}, Path(a.dataset).name))
@@ -127,7 +128,7 @@ def main() -> None:
     for spec, name in specs:
         for mode in a.modes:
             table[(name, mode)] = measure(spec, mode, args)
-    print(f"depth model {a.depth_model}, {a.threads} torch thread(s)")
+    print(f"depth model {a.depth_model}, weights {a.weights or 'shipped'}, {a.threads} torch thread(s)")
     cols = [f"{name} {mode}" for name, mode in table]
     print(f"{'':24s}" + "".join(f"{c:>28s}" for c in cols))
     rows = [("frames", "frames", "{:d}"), ("frames/s (whole loop)", "fps", "{:.2f}"),

@@ -86,9 +86,9 @@ def results_markdown(rows: list[dict], settings: str) -> str:
         lines.append("| " + " | ".join(cell(r[c], d) for c, _, _, d in COLUMNS) + " |")
     lines += ["", "ATE: RMSE of the camera positions after Umeyama alignment (SE(3), and Sim(3) with the scale shown). "
               "never-moving ATE: the best a camera that never moves could do (the positions' RMS distance to their "
-              "mean). rot. error: RMSE of the orientation after the best rotation alignment. RPE: per-frame relative pose "
-              "error (RMSE). frames/s: the system alone, without reading. n/a: the sequence has no ground truth. "
-              "Each sequence's folder holds its report.html.", ""]
+              "mean). rot. error: RMSE of the orientation after the best rotation alignment. RPE: per-frame "
+              "relative pose error (RMSE). frames/s: the system alone, without reading. n/a: the sequence has no "
+              "ground truth. Each sequence's folder holds its report.html.", ""]
     return "\n".join(lines)
 
 
