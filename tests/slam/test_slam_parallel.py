@@ -29,11 +29,13 @@ def test_parallel_mapping_tracks_the_same_frames_within_tolerance():
     assert all(r.tracking_ok for r in par_run.results)
     # Tolerance. The tracker does not wait for the mapping thread, so while it is busy no keyframe is taken and
     # the keyframes are sparser (measured: 5 instead of 7 on these 24 frames, frames 0 5 12 15 22 against 0 5 9
-    # 13 16 19 22), and the trajectory is less accurate: measured 0.050 m (2.2% of the 2.3 m path) against
-    # 0.016 m (0.7%). Stated tolerance: sequential within 1% of the path, parallel within 3%.
+    # 13 16 19 22), and the trajectory is less accurate: sequential 0.016 m (0.7% of the 2.3 m path); parallel,
+    # whose keyframes depend on the threads' timing, 2.1-3.8% over six runs on the idle 2-core machine and 4.1%
+    # once in a full CI run (a keyframe gap of 9 frames while the thread was busy). Stated tolerance: sequential
+    # within 1% of the path, parallel within 6%; a run that loses the map ends far outside (tens of percent).
     path = seq_ev["path_length_gt"]
     assert seq_ev["ate_sim3_rmse"] <= 0.01 * path, seq_ev["ate_sim3_rmse"]
-    assert par_ev["ate_sim3_rmse"] <= 0.03 * path, (par_ev["ate_sim3_rmse"], seq_ev["ate_sim3_rmse"])
+    assert par_ev["ate_sim3_rmse"] <= 0.06 * path, (par_ev["ate_sim3_rmse"], seq_ev["ate_sim3_rmse"])
     assert len(par_run.keyframes) >= 2 and system.mapper.updates >= 1
     # Every keyframe's frame is flagged, with its window solve, once mapping has finished.
     kf_frames = {k.frame_index for k in par_run.keyframes}
