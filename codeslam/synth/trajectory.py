@@ -151,6 +151,18 @@ ALONG_MIN_DISTANCE = 2.5
 ALONG_PITCH = (math.radians(-30.0), math.radians(15.0))
 
 
+def _take_views(poses: list, n: int, pos: np.ndarray, yaw: np.ndarray, pitch: np.ndarray, ok: np.ndarray,
+                rng: np.random.Generator) -> None:
+    """Append to ``poses`` (until it holds ``n``) a camera at each accepted candidate ``pos[i]`` (``ok``) looking
+    along ``yaw[i]``, ``pitch[i]``, with a small random roll (one draw of ``rng`` per pose taken)."""
+    for i in np.nonzero(ok)[0]:
+        if len(poses) == n:
+            break
+        roll = float(np.clip(rng.normal(0.0, math.radians(3.0)), -0.2, 0.2))
+        look = _direction(np.array(yaw[i]), np.array(pitch[i]))
+        poses.append(look_at(torch.from_numpy(pos[i]), torch.from_numpy(pos[i] + look), roll))
+
+
 def _along_room_views(scene: Scene, n_along: int, rng: np.random.Generator, clearance: float = 0.25) -> list:
     """n_along poses looking along the room from standing or sitting height (see :func:`random_views_v2`)."""
     W, D, H = scene.size
@@ -168,12 +180,7 @@ def _along_room_views(scene: Scene, n_along: int, rng: np.random.Generator, clea
                         *ALONG_PITCH)
         yaw = np.arctan2(v[:, 1], v[:, 0])
         ok = _free(scene, pos, clearance) & (flat >= ALONG_MIN_DISTANCE)
-        for i in np.nonzero(ok)[0]:
-            if len(poses) == n_along:
-                break
-            roll = float(np.clip(rng.normal(0.0, math.radians(3.0)), -0.2, 0.2))
-            look = _direction(np.array(yaw[i]), np.array(pitch[i]))
-            poses.append(look_at(torch.from_numpy(pos[i]), torch.from_numpy(pos[i] + look), roll))
+        _take_views(poses, n_along, pos, yaw, pitch, ok, rng)
     return poses
 
 
@@ -239,12 +246,7 @@ def look_at_views(scene: Scene, n: int, rng: np.random.Generator, clearance: flo
             & (pos[:, 1] < D - clearance)
         ok = inside & (pitch >= LOOK_AT_PITCH[0]) & (pitch <= LOOK_AT_PITCH[1])
         ok[ok] = _free(scene, pos[ok], clearance)
-        for i in np.nonzero(ok)[0]:
-            if len(poses) == n:
-                break
-            roll = float(np.clip(rng.normal(0.0, math.radians(3.0)), -0.2, 0.2))
-            look = _direction(np.array(yaw[i]), np.array(pitch[i]))
-            poses.append(look_at(torch.from_numpy(pos[i]), torch.from_numpy(pos[i] + look), roll))
+        _take_views(poses, n, pos, yaw, pitch, ok, rng)
     return torch.stack(poses) if poses else torch.zeros(0, 4, 4, dtype=torch.float64)
 
 
