@@ -359,22 +359,20 @@ class CodeSLAM:
         for m in done:
             kf = m.keyframe
             res = self._results[m.frame_position]
+            res.window, res.marginalised_id = m.report, m.marginalised
+            for k, v in m.ms.items():  # the mapping stages, timed where they ran
+                res.timings_ms[k] = res.timings_ms.get(k, 0.0) + v
             if res.is_keyframe:  # the solve of a keyframe already handed over (parallel mode)
-                res.window, res.marginalised_id = m.report, m.marginalised
-                for k, v in m.ms.items():
-                    res.timings_ms[k] = res.timings_ms.get(k, 0.0) + v
                 continue
             self.keyframes.append(kf)
             rec = self._records[m.frame_position]
             rec.keyframe_id, rec.T_kf, rec.affine = kf.id, torch.eye(4, dtype=torch.float64), None
             self._keyframe_record[kf.id] = m.frame_position
-            res.is_keyframe, res.keyframe_id, res.window, res.marginalised_id = True, kf.id, m.report, m.marginalised
+            res.is_keyframe, res.keyframe_id = True, kf.id
             res.reason = res.keyframe.reason if res.keyframe is not None else res.reason
             res.T_wc = kf.T_wc
             if res.status == INITIALISING and len(self.keyframes) >= 2:  # the second keyframe ends the start-up
                 res.status = TRACKED
-            for k, v in m.ms.items():  # the mapping stages, timed where they ran
-                res.timings_ms[k] = res.timings_ms.get(k, 0.0) + v
             self.ref = kf
             self._matches = None
             self._undo = m.before if not self.parallel else None
