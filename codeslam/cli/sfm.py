@@ -1,7 +1,9 @@
 """``codeslam sfm``: dense N-frame structure from motion (paper Sec. 4.1, Table 1, Fig. 8) on dataset frames.
 
 Every listed frame becomes a keyframe (canonical-camera image and its linear depth decoder from the network);
-codes start at zero and poses at identity, and :func:`codeslam.sfm.sfm` optimises them jointly over the pairs
+codes start at zero and poses where ORB matches with the master and PnP on its zero-code depth put them
+(``--init features``; ``--init identity`` is the paper's start, which holds rotations of about 10 degrees), and
+:func:`codeslam.sfm.sfm` optimises them jointly over the pairs
 ``master`` (the master frame with every other frame, both directions: the paper's Table 1 setup) or ``all``.
 The first listed frame is the gauge (its pose stays the identity).
 
@@ -30,10 +32,11 @@ import typer
 
 from codeslam.cli.app import app
 from codeslam.cli.common import DatasetArg, Device, Format, Frames, JsonOut, OutDir, Threads, Weights
-from codeslam.errors import ConfigError
+from codeslam.errors import CodeSLAMError, ConfigError
 from codeslam.io import check_outputs
 
 PAIR_MODES = ("master", "all")
+INIT_MODES = ("features", "identity")
 
 
 def _load_sfm_config(path: Path | None):
@@ -61,12 +64,16 @@ def sfm_command(
     out: OutDir = None,
     json_out: JsonOut = None,
     config: Path | None = typer.Option(None, "--config", help="YAML of SfMConfig fields (optionally under 'sfm:')."),
+    init: str = typer.Option("features", "--init", help="Initial poses: features (ORB matches with the master "
+                             "and PnP on its zero-code depth) or identity (the paper's start)."),
     max_depth: float = typer.Option(10.0, "--max-depth", help="Point cloud: drop depths beyond this (metres)."),
     device: Device = None,
     threads: Threads = None,
 ) -> None:
     """Jointly optimise the codes and poses of the listed frames (at least 2); depth, poses, point cloud and
     errors. With --out, writes depth/ PNGs, poses.txt, cloud.ply, panel.png, sfm_config.yaml and camera.json."""
+    import torch
+
     from codeslam.cli.common import check_device, open_frames, set_threads
     from codeslam.depthmodel import DepthModel
     from codeslam.recon.fusion import FusionConfig
@@ -77,6 +84,8 @@ def sfm_command(
     check_outputs(out, json_out)  # refuse bad output paths before any work
     if pairs not in PAIR_MODES:
         raise ConfigError(f"--pairs must be one of {', '.join(PAIR_MODES)}, got {pairs!r}")
+    if init not in INIT_MODES:
+        raise ConfigError(f"--init must be one of {', '.join(INIT_MODES)}, got {init!r}")
     cfg = _load_sfm_config(config)
     fusion_cfg = FusionConfig(max_depth=max_depth)
     seq, indices = open_frames(dataset, fmt, frames, min_frames=2, what="SfM")
@@ -92,8 +101,30 @@ def sfm_command(
     t1 = time.perf_counter()
     keyframes = [model.keyframe(f) for f in cframes]
     t2 = time.perf_counter()
+    poses_init, pnp_inliers, left_out = None, None, []
+    if init == "features":
+        from codeslam.slam.frontend import poses_from_features
+
+        jac = keyframes[m].decoder.levels[0].jac
+        zero = keyframes[m].decoder.depth(torch.zeros(model.code_size, dtype=jac.dtype, device=jac.device))
+        poses_init, pnp_inliers = poses_from_features([seq[i] for i in indices], m, zero, model.camera)
+        # A frame the features cannot place (blur, too little overlap) would start at the identity, far outside
+        # the photometric basin, and its diverging pose drags the master's depth with it (TUM fr1/rpy master 18
+        # with frames 24 and 27: 38 deg off, depth 71% worse). It is left out, as a tracker drops such a frame.
+        keep = [i for i in range(len(indices)) if i == m or pnp_inliers[i] > 0]
+        left_out = [indices[i] for i in range(len(indices)) if i not in keep]
+        if len(keep) < 2:
+            raise CodeSLAMError(f"SfM: no frame of {indices} matched the master {master} (ORB + PnP); try "
+                                "--init identity or frames closer to the master")
+        if left_out:
+            typer.echo(f"codeslam: warning: frames {left_out} left out: ORB + PnP found no pose against the master "
+                       f"{master}", err=True)
+            indices, cframes, keyframes = ([x[i] for i in keep] for x in (indices, cframes, keyframes))
+            poses_init, pnp_inliers = poses_init[keep], [pnp_inliers[i] for i in keep]
+            m = indices.index(master)
     pair_list = master_pairs(len(indices), m) if pairs == "master" else all_pairs(len(indices))
-    result = sfm(keyframes, pair_list, cfg)
+    t3 = time.perf_counter()
+    result = sfm(keyframes, pair_list, cfg, poses_init=poses_init)
     depths = [d.cpu() for d in result.depths(keyframes)]
     results = _metrics(model, cframes, keyframes, result, m)
     results.update(
@@ -101,7 +132,8 @@ def sfm_command(
         master=master, pairs=pairs, num_pairs=len(pair_list), code_size=model.code_size,
         camera=model.camera.to_dict(), avg_depth=model.avg_depth, iterations=result.iterations,
         ms_per_iteration=result.ms_per_iteration, sfm_ms=result.total_ms,
-        load_ms=1e3 * (t1 - t0), network_ms=1e3 * (t2 - t1),
+        load_ms=1e3 * (t1 - t0), network_ms=1e3 * (t2 - t1), init=init, init_ms=1e3 * (t3 - t2),
+        pnp_inliers=pnp_inliers, left_out=left_out,
         levels=[{"level": lvl, "iterations": r.iterations, "accepted": r.accepted, "reason": r.reason,
                  "cost_initial": r.costs[0], "cost_final": r.costs[-1]} for lvl, r in result.levels],
         readout_rotation_rad=None if result.rs is None else result.rs.detach().cpu().double().tolist(),

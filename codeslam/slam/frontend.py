@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from codeslam.data.frame import Frame
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.lie import se3_inverse
 from codeslam.slam.config import FeatureConfig
@@ -26,6 +27,7 @@ from codeslam.slam.features import (
     match,
     project_points,
     solve_pnp,
+    to_uint8,
 )
 from codeslam.slam.reprojection import ReprojectionTerm
 
@@ -87,6 +89,19 @@ class SparseTracker:
     def __init__(self, cfg: FeatureConfig, camera: PinholeCamera, depth_camera: PinholeCamera) -> None:
         self.cfg, self.camera, self.depth_camera = cfg, camera, depth_camera
         self.extract = ORBExtractor(cfg.n_features, fast_threshold=cfg.fast_threshold)
+
+    def features_of(self, frame: Frame) -> Features | None:
+        """Keypoints of an input frame, found in the feature camera (the frame resampled to it, so keypoints see
+        its full resolution); None when the resampled image holds non-finite values."""
+        from codeslam.geometry.resample import resample_image, resample_validity
+
+        cam = self.camera
+        gray = frame.gray[None].float()
+        hi = gray[0] if frame.camera == cam else resample_image(gray, frame.camera, cam)[0]
+        valid = resample_validity(frame.valid, frame.camera, cam) if frame.camera != cam else frame.valid
+        if not bool(torch.isfinite(hi).all()):
+            return None
+        return self.extract(to_uint8(hi), None if valid is None else valid.numpy())
 
     def points(self, features: Features, depth: torch.Tensor) -> np.ndarray:
         """(N, 3) 3D points of a keyframe's keypoints from its depth map (network camera)."""
@@ -207,3 +222,32 @@ class SparseTracker:
                 best = (kid, found)
         return best
 
+
+
+def poses_from_features(frames: list[Frame], master: int, master_depth: torch.Tensor, depth_camera: PinholeCamera,
+                        cfg: FeatureConfig | None = None) -> tuple[torch.Tensor, list[int]]:
+    """Initial poses for N-frame SfM: each frame's pose in the master's camera by global ORB matching against the
+    master's keypoints (3D from ``master_depth`` (H, W) seen by ``depth_camera``, e.g. the zero-code depth) and
+    PnP with RANSAC, as the tracker starts every alignment. The paper's SfM starts from the identity, which holds
+    rotations of about 10 degrees (``SfMConfig.pyramid_levels``); TUM fr1/rpy masters with neighbours 6-9 frames
+    away are 9-14 degrees from it and ended 15-39 degrees off.
+
+    Returns (F, 4, 4) float64 T_master,frame (the master's own pose and frames PnP cannot place: the identity)
+    and the PnP inlier count of each frame (0 where it failed)."""
+    from codeslam.slam.features import scaled_camera
+
+    cfg = cfg or FeatureConfig()
+    sparse = SparseTracker(cfg, scaled_camera(depth_camera, cfg.scale), depth_camera)
+    feats = [sparse.features_of(f) for f in frames]
+    poses = torch.eye(4, dtype=torch.float64).repeat(len(frames), 1, 1)
+    inliers = [0] * len(frames)
+    if feats[master] is None:
+        return poses, inliers
+    kf = KeyframeFeatures(feats[master], sparse.points(feats[master], master_depth))
+    for i, f in enumerate(feats):
+        if i == master or f is None:
+            continue
+        found = sparse.track(kf, f, None)
+        if found.ok:
+            poses[i], inliers[i] = found.T_kf.to(torch.float64), found.num_inliers
+    return poses, inliers

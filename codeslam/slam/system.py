@@ -46,7 +46,7 @@ from codeslam.geometry.lie import se3_inverse
 from codeslam.sfm.decoder import LinearDecoder
 from codeslam.sfm.keyframes import Keyframe
 from codeslam.slam.config import SLAMConfig
-from codeslam.slam.features import Features, scaled_camera, to_uint8
+from codeslam.slam.features import Features, scaled_camera
 from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
 from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult
@@ -435,14 +435,7 @@ class CodeSLAM:
                 self.window.sparse = SparseSettings(self.sparse.camera, fcfg.sigma,
                                                     self.sparse.extract.orb.getScaleFactor())
             with timer("features"):
-                from codeslam.geometry.resample import resample_image, resample_validity
-
-                cam = self.sparse.camera
-                gray = frame.gray[None].float()
-                hi = gray[0] if frame.camera == cam else resample_image(gray, frame.camera, cam)[0]
-                valid = resample_validity(frame.valid, frame.camera, cam) if frame.camera != cam else frame.valid
-                if bool(torch.isfinite(hi).all()):
-                    features = self.sparse.extract(to_uint8(hi), None if valid is None else valid.numpy())
+                features = self.sparse.features_of(frame)
         return _Views(net, features)
 
     def _make_keyframe(self, views: _Views, T_wc: torch.Tensor, kid: int, segment: int) -> MapKeyframe:

@@ -146,6 +146,7 @@ def _bad_cases(work) -> list[list[str]]:
         ["sfm", seq, "--frames", "0,7", "--weights", w],
         ["sfm", seq, "--frames", "0,1", "--master", "3", "--weights", w],
         ["sfm", seq, "--frames", "0,1", "--pairs", "some", "--weights", w],
+        ["sfm", seq, "--frames", "0,1", "--init", "magic", "--weights", w],
         ["sfm", seq, "--frames", "0,1", "--weights", str(work["junk"])],
         ["sfm", seq, "--frames", "0,1", "--weights", w, "--config", str(work["junk"])],
         ["depth", seq, "--frames", "0", "--weights", w, "--device", "gpu"],
@@ -154,7 +155,7 @@ def _bad_cases(work) -> list[list[str]]:
     ]
 
 
-@pytest.mark.parametrize("case", range(18))
+@pytest.mark.parametrize("case", range(19))
 def test_bad_input_is_one_line_nonzero_and_writes_nothing(work, tmp_path: Path, capsys, case: int):
     args = _bad_cases(work)[case]
     out, js = tmp_path / "out", tmp_path / "r.json"

@@ -66,3 +66,30 @@ def test_close_range_tum_masters_end_well_below_the_zero_code(model, tum_rpy):
         assert after < before, (m, before, after)
     mean = sum(ratios) / len(ratios)
     assert mean <= 0.85, ratios  # the issue's check: at least 15% below the zero code
+
+
+def test_feature_start_holds_neighbours_outside_the_identity_basin(model, tum_rpy):
+    """The SfM issue's neighbour set for master 60 (-6, -3, +3, +6, +9 frames: up to 14 degrees away): from the
+    identity the coarse-to-fine solve ends 15 degrees off (frame 69 turned 72 degrees); from ORB + PnP on the
+    master's zero-code depth (``poses_from_features``, what ``codeslam sfm`` starts from) it ends within 1 degree
+    (measured 0.71) and the depth stays near the zero code's (+1%)."""
+    from codeslam.slam.frontend import poses_from_features
+
+    seq = open_dataset(tum_rpy)
+    idx = [60, 54, 57, 63, 66, 69]
+    frames = [model.canonical(seq[i]) for i in idx]
+    kfs = [model.keyframe(f) for f in frames]
+    dec = kfs[0].decoder
+    zero = torch.zeros(model.code_size, dtype=dec.levels[0].jac.dtype)
+    poses, inliers = poses_from_features([seq[i] for i in idx], 0, dec.depth(zero), model.camera)
+    assert inliers[0] == 0 and min(inliers[1:]) >= 50, inliers
+    gt_poses = torch.stack([f.pose for f in frames]).double().numpy()
+    start = pose_errors_relative_to_frame(poses.numpy(), gt_poses, 0)
+    assert start.rot_deg < 2.0 < start.rot_gt_deg, (start.rot_deg, start.rot_gt_deg)
+    res = sfm(kfs, master_pairs(len(kfs), 0), SfMConfig(), poses_init=poses)
+    err = pose_errors_relative_to_frame(res.poses.detach().double().numpy(), gt_poses, 0)
+    assert err.rot_deg < 1.5, err.rot_deg
+    gt = frames[0].depth
+    before = prox_rmse(dec.prox(zero), model.target_prox(gt), gt)
+    after = prox_rmse(dec.prox(res.codes[0]), model.target_prox(gt), gt)
+    assert after < 1.1 * before, (before, after)
