@@ -153,9 +153,9 @@ def huber_cost_and_weight(s: torch.Tensor, k: torch.Tensor | float) -> tuple[tor
     """Huber function of normalised residuals s (...) with threshold k: cost ``rho(s)`` (0.5 s^2 inside,
     ``k |s| - 0.5 k^2`` outside) and IRLS weight ``rho'(s) / s`` (1 inside, ``k / |s|`` outside). Loss (iii)."""
     a = s.abs()
-    inside = a <= k
-    cost = torch.where(inside, 0.5 * s * s, k * a - 0.5 * k * k)
-    weight = torch.where(inside, torch.ones_like(a), k / a.clamp_min(torch.finfo(a.dtype).tiny))
+    a_k = torch.clamp(a, max=k)  # min(|s|, k): the same rounding as each branch, without two torch.where
+    cost = a_k * a - 0.5 * a_k * a_k  # 0.5 s^2 inside, k |s| - 0.5 k^2 outside
+    weight = (k / a).clamp(max=1.0)  # 1 inside (also at s = 0, where k / 0 = inf), k / |s| outside
     return cost, weight
 
 

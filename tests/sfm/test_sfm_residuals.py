@@ -71,6 +71,18 @@ def test_huber_weight_is_the_derivative_of_its_cost_over_s():
     torch.testing.assert_close(d, w * s.detach())
 
 
+def test_huber_cost_and_weight_are_the_two_branches():
+    k = 1.3
+    s = torch.tensor([-4.0, -1.3, -0.7, 0.0, 0.2, 1.3, 2.5, float("inf")], dtype=D)
+    cost, w = huber_cost_and_weight(s, k)
+    a = s.abs()
+    inside = a <= k
+    assert torch.equal(cost, torch.where(inside, 0.5 * s * s, k * a - 0.5 * k * k))
+    assert torch.equal(w, torch.where(inside, torch.ones_like(a), k / a))
+    cost_t, w_t = huber_cost_and_weight(s, torch.tensor(k, dtype=D))  # a tensor threshold too
+    assert torch.equal(cost_t, cost) and torch.equal(w_t, w)
+
+
 def _layout(fixed=()):
     return VariableLayout.for_sfm(3, 5, 4, True, fixed=fixed)
 
