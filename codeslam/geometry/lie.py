@@ -19,6 +19,8 @@ order with left perturbations, plain tensors and batched Jacobians in one consis
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 from codeslam.constants import SERIES_ANGLE, SMALL_ANGLE
@@ -134,6 +136,33 @@ def se3_exp(xi: torch.Tensor) -> torch.Tensor:
     R = _eye(xi) + A * W + B * W2
     V = _eye(xi) + B * W + C * W2  # = so3_left_jacobian(phi), sharing the coefficients
     return se3_from_rt(R, (V @ rho.unsqueeze(-1)).squeeze(-1))
+
+
+def se3_exp_host(xi: torch.Tensor) -> torch.Tensor:
+    """:func:`se3_exp` of ONE tangent vector (6,), evaluated on the host in float64 scalar arithmetic (the same
+    closed forms, series and thresholds) and returned as a (4, 4) tensor of ``xi``'s dtype and device. For the
+    retraction of a small solver, where ``se3_exp``'s ~60 tensor operations on six numbers cost about ten times
+    more than this (one device-to-host copy of ``xi``, one host-to-device copy of the result)."""
+    r1, r2, r3, p1, p2, p3 = xi.tolist()
+    t2 = p1 * p1 + p2 * p2 + p3 * p3
+    if t2 < SMALL_ANGLE**2:
+        A, B = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
+    else:
+        t = math.sqrt(t2)
+        A, B = math.sin(t) / t, 2.0 * math.sin(0.5 * t) ** 2 / t2  # sin(t)/t, (1 - cos t)/t^2
+    if t2 < SERIES_ANGLE**2:
+        C = 1 / 6 - t2 * (1 / 120 - t2 * (1 / 5040 - t2 * (1 / 362880 - t2 / 39916800)))
+    else:
+        t = math.sqrt(t2)
+        C = (t - math.sin(t)) / (t2 * t)  # (t - sin t)/t^3
+    p, rho = (p1, p2, p3), (r1, r2, r3)
+    W = ((0.0, -p3, p2), (p3, 0.0, -p1), (-p2, p1, 0.0))  # phi^
+    W2 = [[p[i] * p[j] - (t2 if i == j else 0.0) for j in range(3)] for i in range(3)]  # phi^2 = phi phi^T - t^2 I
+    R = [[float(i == j) + A * W[i][j] + B * W2[i][j] for j in range(3)] for i in range(3)]
+    V = [[float(i == j) + B * W[i][j] + C * W2[i][j] for j in range(3)] for i in range(3)]  # J_l(phi)
+    t_ = [V[i][0] * rho[0] + V[i][1] * rho[1] + V[i][2] * rho[2] for i in range(3)]
+    rows = [[*R[i], t_[i]] for i in range(3)] + [[0.0, 0.0, 0.0, 1.0]]
+    return torch.tensor(rows, dtype=xi.dtype, device=xi.device)
 
 
 def se3_log(T: torch.Tensor) -> torch.Tensor:

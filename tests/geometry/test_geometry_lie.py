@@ -16,6 +16,7 @@ from codeslam.geometry.lie import (
     se3_adjoint,
     se3_compose,
     se3_exp,
+    se3_exp_host,
     se3_inverse,
     se3_log,
     so3_exp,
@@ -138,6 +139,16 @@ def test_se3_exp_matches_matrix_exponential_and_log_inverts_it():
     wedge[:, :3, 3] = xi[:, :3]
     assert torch.allclose(T, torch.linalg.matrix_exp(wedge), atol=1e-12)
     assert torch.allclose(se3_log(T), xi, atol=1e-10)
+
+
+def test_se3_exp_host_is_se3_exp_at_every_angle_branch_and_keeps_dtype():
+    phis = _phis(11)
+    rho = torch.randn(len(ANGLES), 3, generator=_gen(12), dtype=F64)
+    for xi in torch.cat([rho, phis], dim=-1):
+        assert torch.allclose(se3_exp_host(xi), se3_exp(xi), atol=1e-14, rtol=0)
+    xi32 = _xis(1, 13)[0].float()
+    T = se3_exp_host(xi32)
+    assert T.dtype == torch.float32 and torch.allclose(T.double(), se3_exp(xi32.double()), atol=1e-7)
 
 
 def test_se3_group_laws():
