@@ -8,6 +8,8 @@ SMALL_ANGLE = 1e-6
 SERIES_ANGLE = 0.1
 # Smallest depth (metres) treated as a valid point in front of the camera.
 MIN_DEPTH = 1e-3
+# Reprojection residuals of matched keypoints: a point counts as in front of the camera above this depth.
+MIN_KEYPOINT_DEPTH = 1e-6
 # Clamp for proximity values decoded by the network, so that depth = a (1 - p) / p stays finite.
 MIN_PROXIMITY = 1e-4
 MAX_PROXIMITY = 1.0 - 1e-4

@@ -157,12 +157,12 @@ def build_levels(
             avg_depth=torch.tensor([1.0 if kf.decoder is None else kf.decoder.avg_depth for kf in keyframes],
                                    dtype=dtype, device=device),
             uv=pixel_grid(H, W, dtype, device).reshape(-1, 2),
-            gray_valid=None if valid_pyr is None else _real_pixels(valid_pyr[lvl]),
+            gray_valid=None if valid_pyr is None else real_pixels(valid_pyr[lvl]),
         )
     return out
 
 
-def _real_pixels(share: torch.Tensor) -> torch.Tensor:
+def real_pixels(share: torch.Tensor) -> torch.Tensor:
     """(F, 1, H, W) share of real source pixels under each pyramid pixel -> 1 where it is all real, else 0.
 
     Not eroded by the 3x3 Sobel footprint, although the gradients next to an unreal pixel see it: the residuals

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import torch
 
+from codeslam.constants import MIN_KEYPOINT_DEPTH
 from codeslam.geometry.camera import PinholeCamera, project, project_jac
 from codeslam.geometry.image import bilinear_sample
 from codeslam.geometry.lie import hat, se3_act
@@ -76,14 +77,14 @@ class ReprojectionTerm:
         if len(self) == 0:
             return torch.zeros(0, dtype=torch.bool)
         r, x, _ = self.residuals(state)
-        return ((r.norm(dim=-1) <= threshold_px) & (x[:, 2] > 1e-6)).cpu()
+        return ((r.norm(dim=-1) <= threshold_px) & (x[:, 2] > MIN_KEYPOINT_DEPTH)).cpu()
 
     def _robust(self, r: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """-> per-point cost (N,) ``weight rho(|r| / sigma)`` and IRLS weight (N,) ``weight rho'(s)/s / sigma^2``;
         points behind B cost ``rho(huber)`` and get no weight."""
         sigma = self.sigma.to(dtype=r.dtype, device=r.device)
         s = r.norm(dim=-1) / sigma
-        front = x[:, 2] > 1e-6
+        front = x[:, 2] > MIN_KEYPOINT_DEPTH
         rho, w = huber_cost_and_weight(s, self.huber)
         k = self.huber
         cost = torch.where(front, rho, torch.full_like(rho, 0.5 * k * k))

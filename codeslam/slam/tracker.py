@@ -2,11 +2,15 @@
 keyframe is the minimiser of the photometric error, coarse to fine over the image pyramid. The keyframe's depth
 (decoded at its current code) is held fixed and there is no geometric term: the frame has no depth of its own.
 
-The problem is a two-frame instance of the SfM back-end (:class:`~codeslam.sfm.PairProblem` with the keyframe
-as frame 0 at the identity and the frame as frame 1 without a decoder), so residuals, loss functions and the
-damped Gauss-Newton solver are exactly those of the mapping; only the frame's pose and the pair's affine
-brightness are free. The result is checked before it is trusted: a non-finite cost or pose, too little overlap
-or too few photometric inliers mark the tracking as failed, and the caller falls back to its motion model.
+The cost is that of a two-frame instance of the SfM back-end (:class:`~codeslam.sfm.PairProblem` with the
+keyframe as frame 0 at the identity and the frame as frame 1 without a decoder): the mapping's residuals and loss
+functions, minimised by its damped Gauss-Newton solver; only the frame's pose and the pair's affine brightness
+are free. By default it is solved by :mod:`codeslam.slam.alignment`, written for those 8 variables, with the
+keyframe's side computed once per keyframe and code (TUM fr1/rpy at 128x96, one thread: median 77 -> 14 ms per
+frame, poses within 1e-6, ``benchmarks/bench_tracker.py``); the generic problem stays reachable
+(``solver='generic'``) to check it. The result is checked before it is trusted: a non-finite cost or pose, too
+little overlap or too few photometric inliers mark the tracking as failed, and the caller falls back to its
+motion model.
 """
 
 from __future__ import annotations
@@ -18,10 +22,17 @@ import torch
 
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.sfm.config import SfMConfig
-from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.solver import PairProblem, levenberg_marquardt
 from codeslam.sfm.variables import AFFINE_DIM, CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
+from codeslam.slam.alignment import (
+    FramePyramid,
+    KeypointTerm,
+    TrackingProblem,
+    TrackingReference,
+    TrackingState,
+    fixed_depth_decoder,
+)
 from codeslam.slam.config import TrackerConfig
 from codeslam.slam.poses import project_to_se3
 from codeslam.slam.reprojection import ReprojectionTerm
@@ -67,17 +78,8 @@ class TrackResult:
     residual: float = float("nan")
 
 
-def fixed_depth_decoder(decoder: LinearDecoder, code: torch.Tensor) -> LinearDecoder:
-    """The decoder's proximity at ``code`` on every level as a decoder of code size 1 with a zero Jacobian:
-    tracking holds the keyframe's depth fixed, so this keeps the per-iteration decoding (``prox0 + J c``, a
-    (C, H, W) contraction) out of the solver's loop."""
-    code = code.to(dtype=decoder.levels[0].jac.dtype, device=decoder.levels[0].jac.device)
-    levels = tuple(
-        DecoderLevel(decoder.prox(code, k), torch.zeros((1, *lvl.prox0.shape), dtype=lvl.jac.dtype,
-                                                          device=lvl.jac.device), lvl.uncertainty)
-        for k, lvl in enumerate(decoder.levels)
-    )
-    return LinearDecoder(levels, decoder.avg_depth)
+SOLVERS = ("dedicated", "generic")
+REFERENCE_CACHE_SIZE = 4  # keyframes whose tracking data are kept (the reference and relocalisation candidates)
 
 
 class PhotometricTracker:
@@ -85,15 +87,34 @@ class PhotometricTracker:
 
     cfg: levels, iterations and failure thresholds; residuals: the photometric residual's settings (sigma, Huber,
     border, slant and occlusion weights), normally the window's SfM config (its geometric term is switched off).
+    solver: 'dedicated' (:class:`~codeslam.slam.alignment.TrackingProblem`, the keyframe's side cached per keyframe
+    and code) or 'generic' (the two-frame :class:`~codeslam.sfm.solver.PairProblem`, rebuilt for every frame); both
+    minimise the same cost with the same Levenberg-Marquardt loop, the generic one is kept to check the other.
     """
 
-    def __init__(self, cfg: TrackerConfig, residuals: SfMConfig) -> None:
+    def __init__(self, cfg: TrackerConfig, residuals: SfMConfig, solver: str = "dedicated") -> None:
+        if solver not in SOLVERS:
+            raise ValueError(f"tracker solver must be one of {SOLVERS}, got {solver!r}")
         self.cfg = cfg
+        self.solver = solver
         self.sfm_cfg = replace(
             residuals, photometric=True, geometric=False, affine_brightness=cfg.affine_brightness,
             pyramid_levels=cfg.pyramid_levels, max_iterations=cfg.max_iterations,
             relative_cost_tolerance=cfg.relative_cost_tolerance,
         )
+        self._references: list[TrackingReference] = []  # most recently used last
+
+    def reference(self, keyframe: Keyframe, code: torch.Tensor) -> TrackingReference:
+        """The keyframe's tracking data at ``code`` (points, intensities, slant weights and masks per level), built
+        on first use and kept for the next frames while the keyframe and its code stay the same."""
+        ref = keyframe.decoder.levels[0].jac
+        for i, r in enumerate(self._references):
+            if r.dtype == ref.dtype and r.device == ref.device and r.matches(keyframe, code):
+                self._references.append(self._references.pop(i))
+                return r
+        r = TrackingReference(keyframe, code, self.cfg.pyramid_levels, self.sfm_cfg, ref.dtype, ref.device)
+        self._references = [*self._references[-(REFERENCE_CACHE_SIZE - 1):], r]
+        return r
 
     def track(
         self,
@@ -114,13 +135,9 @@ class PhotometricTracker:
         ``valid`` (H, W) bool marks the image's real pixels (None: all). ``reprojection``: matched keypoints
         (keyframe = frame 0, this frame = frame 1) whose residuals join the photometric ones; the result is then
         also ok when at least ``min_feature_inliers`` of them lie within ``feature_threshold`` pixels."""
-        cfg, sfm_cfg = self.cfg, self.sfm_cfg
+        cfg = self.cfg
         ref = keyframe.decoder.levels[0].jac
         dtype, device = ref.dtype, ref.device
-        fixed_depth = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, code),
-                               keyframe.valid)
-        frame = Keyframe(image.to(dtype=dtype, device=device), camera, None, valid)  # no depth: B of the pair only
-        levels = build_levels([fixed_depth, frame], cfg.pyramid_levels, dtype, device)
         eye = torch.eye(4, dtype=dtype, device=device)
         affine = torch.zeros(1, AFFINE_DIM, dtype=dtype, device=device)
         if affine_init is not None:
@@ -133,18 +150,13 @@ class PhotometricTracker:
         # Only the frame's pose and the pair's brightness are free: keyframe pose and depth are fixed (Sec. 4.2).
         fixed = [BlockId(POSE, 0), BlockId(CODE, 0), BlockId(CODE, 1)]
         layout = VariableLayout.for_sfm(2, 1, 1, cfg.affine_brightness, fixed)
-        pairs = torch.tensor([[0, 1]], device=device)  # A = keyframe (decoded depth), B = frame
-        iterations = 0
         terms = [] if reprojection is None or len(reprojection) == 0 else [reprojection]
         if T_kf_prior is not None and cfg.motion_prior_translation > 0:  # the motion model as a soft constraint
             terms.append(self._motion_prior(T_kf_prior, dtype, device))
-        for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):  # coarse to fine (Sec. 4.2)
-            problem = PairProblem(levels[lvl], pairs, sfm_cfg, terms)
-            state, report = levenberg_marquardt(problem, state, layout, sfm_cfg, iters)
-            iterations += report.iterations
-        finest = levels[cfg.pyramid_levels[-1]]
-        cost, ev = PairProblem(finest, pairs, sfm_cfg, terms).evaluate(state)
-        result = self._checked(state, ev, finest.gray[0, 0].reshape(-1), cost, iterations)
+        align = self._align_dedicated if self.solver == "dedicated" else self._align_generic
+        state, cost, valid_px, r, sigma, gray_A, iterations = align(keyframe, code, image, camera, valid, state,
+                                                                    layout, terms)
+        result = self._checked(state, valid_px, r, sigma, gray_A, cost, iterations)
         if terms:
             result.feature_matches = len(reprojection)
             result.feature_inliers = int(reprojection.inliers(state, feature_threshold).sum())
@@ -152,6 +164,50 @@ class PhotometricTracker:
             if not result.ok and finite and min_feature_inliers > 0 and result.feature_inliers >= min_feature_inliers:
                 result.ok, result.reason = True, ""  # the features vouch for the pose (see TrackResult)
         return result
+
+    def _align_dedicated(self, keyframe: Keyframe, code: torch.Tensor, image: torch.Tensor, camera: PinholeCamera,
+                         valid: torch.Tensor | None, state: SfMState, layout: VariableLayout, terms: list):
+        """Coarse to fine over :class:`~codeslam.slam.alignment.TrackingProblem` with the keyframe's cached data.
+        Returns (state, cost, valid (N,), r (N,), sigma, gray_A (N,), iterations) at the finest level."""
+        cfg, sfm_cfg = self.cfg, self.sfm_cfg
+        reference = self.reference(keyframe, code)
+        frame = FramePyramid(image, camera, valid, cfg.pyramid_levels, reference.dtype, reference.device)
+        current = TrackingState.from_sfm(state)
+        keypoints, others = None, []
+        for term in terms:  # the keypoints' residuals in the tracker's own layout, the motion prior as it is
+            if type(term) is ReprojectionTerm and (term.a, term.b) == (0, 1):
+                keypoints = KeypointTerm.from_term(term, reference.dtype, reference.device)
+            else:
+                others.append(term)
+        iterations = 0
+        for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):  # coarse to fine (Sec. 4.2)
+            problem = TrackingProblem(reference.levels[lvl], frame.levels[lvl], sfm_cfg, keypoints, others)
+            current, report = levenberg_marquardt(problem, current, layout, sfm_cfg, iters)
+            iterations += report.iterations
+        cost, ev = problem.evaluation(current)  # the finest level at the final state (the solver evaluated it)
+        return (current.to_sfm(), cost, ev.valid, ev.r, ev.sigma, reference.levels[cfg.pyramid_levels[-1]].gray,
+                iterations)
+
+    def _align_generic(self, keyframe: Keyframe, code: torch.Tensor, image: torch.Tensor, camera: PinholeCamera,
+                       valid: torch.Tensor | None, state: SfMState, layout: VariableLayout, terms: list):
+        """The same alignment as a two-frame :class:`~codeslam.sfm.solver.PairProblem` (A = keyframe with its
+        depth decoded at ``code``, B = the frame), its levels rebuilt for every frame; same returns as
+        :meth:`_align_dedicated`."""
+        cfg, sfm_cfg = self.cfg, self.sfm_cfg
+        dtype, device = state.poses.dtype, state.poses.device
+        fixed_depth = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, code),
+                               keyframe.valid)
+        frame = Keyframe(image.to(dtype=dtype, device=device), camera, None, valid)  # no depth: B of the pair only
+        levels = build_levels([fixed_depth, frame], cfg.pyramid_levels, dtype, device)
+        pairs = torch.tensor([[0, 1]], device=device)  # A = keyframe (decoded depth), B = frame
+        iterations = 0
+        for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):  # coarse to fine (Sec. 4.2)
+            problem = PairProblem(levels[lvl], pairs, sfm_cfg, terms)
+            state, report = levenberg_marquardt(problem, state, layout, sfm_cfg, iters)
+            iterations += report.iterations
+        finest = levels[cfg.pyramid_levels[-1]]
+        cost, ev = PairProblem(finest, pairs, sfm_cfg, terms).evaluate(state)
+        return state, cost, ev.valid[0, 0], ev.r[0, 0], ev.sigma[0, 0], finest.gray[0, 0].reshape(-1), iterations
 
     def _motion_prior(self, T_kf_prior: torch.Tensor, dtype: torch.dtype, device: torch.device) -> LinearPrior:
         """``0.5 |log(T T_pred^-1)|^2_W`` on the frame's pose around the motion model's prediction: a translation
@@ -166,15 +222,15 @@ class PhotometricTracker:
         return LinearPrior([BlockId(POSE, 1)], H, torch.zeros(6, dtype=dtype, device=device),
                            [T_kf_prior.to(dtype=dtype, device=device)])
 
-    def _checked(self, state: SfMState, ev, gray_A: torch.Tensor, cost: float, iterations: int) -> TrackResult:
+    def _checked(self, state: SfMState, valid: torch.Tensor, r: torch.Tensor, sigma: torch.Tensor,
+                 gray_A: torch.Tensor, cost: float, iterations: int) -> TrackResult:
         """The track result with the photometric failure checks applied (non-finite, overlap, inlier ratio,
-        explained variance). ``gray_A`` (N,): the keyframe's intensities at the finest tracked level."""
+        explained variance). At the finest tracked level: ``valid`` (N,) the photometric residuals' mask, ``r``
+        (N,) the residuals, ``sigma`` their noise, ``gray_A`` (N,) the keyframe's intensities."""
         cfg = self.cfg
-        valid = ev.valid[0, 0]  # (N,) photometric residuals of the one pair
-        r = ev.r[0, 0]
         n_valid = int(valid.sum())
         overlap = n_valid / valid.numel()
-        inliers = valid & (r.abs() <= cfg.inlier_sigmas * ev.sigma[0, 0])
+        inliers = valid & (r.abs() <= cfg.inlier_sigmas * sigma)
         inlier_ratio = int(inliers.sum()) / max(n_valid, 1)
         explained = 0.0
         var_A = 0.0

@@ -1,0 +1,419 @@
+"""The tracker's alignment problem written for its two free blocks (paper Sec. 4.2): the frame's pose (6, left
+increment of ``T_kf`` as everywhere in :mod:`codeslam.sfm`) and the pair's affine brightness (2).
+
+It is the cost the generic two-frame :class:`~codeslam.sfm.solver.PairProblem` gives for a keyframe A at the
+identity with its depth fixed and a frame B without depth, photometric residuals only (Eq. 13 with the affine
+brightness of Sec. 5.2), with the same loss functions: (i) the masks, (ii) the sigma, (iii) Huber, (iv) the slant
+weight; (v) compares the warped point with B's decoded surface, which a tracked frame has not (the generic path
+reads B's proximity as the invalid sentinel and never down-weights), so its weight is 1 here too; plus the affine
+prior and the extra terms (reprojection, motion prior). What makes it fast is what the generic problem cannot know:
+
+* everything of the keyframe is fixed while frames are tracked against it: per level the points ``pi^-1(u,
+  D_A[u])`` (depth decoded at the code), the intensities, the slant weights and the masks are computed once
+  (:class:`TrackingReference`) and reused for every frame;
+* the frame's pyramid is built alone (:class:`FramePyramid`), its grey image, Sobel gradients and real-pixel mask
+  stacked for one bilinear lookup;
+* per-pixel quantities are stored (channels, N), the layout in which the small products and the elementwise
+  operations are fast on a CPU, and the normal equations are one ``J (w J^T)`` product of the (8, M) Jacobian of
+  the M valid pixels, mapped from the relative pose to the frame's pose by the adjoint (8x8), instead of the
+  generic block assembly.
+
+:class:`TrackingProblem` has the ``evaluate`` / ``linearize`` interface of
+:func:`~codeslam.sfm.solver.levenberg_marquardt` and :class:`TrackingState` its ``retract``, so the damped
+Gauss-Newton steps, their acceptance and the stopping rules are the mapping's own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH, MIN_KEYPOINT_DEPTH
+from codeslam.geometry.camera import PinholeCamera, unproject_jac_depth
+from codeslam.geometry.image import image_gradients, image_pyramid, pixels_to_grid, pyramid_cameras, rgb_to_gray
+from codeslam.geometry.lie import hat, se3_exp_host
+from codeslam.geometry.proximity import prox_to_depth
+from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
+from codeslam.sfm.keyframes import Keyframe, build_levels, real_pixels
+from codeslam.sfm.residuals import huber_cost_and_weight, interpolant_gradient, slant_weight
+from codeslam.sfm.variables import AFFINE_DIM, POSE_DIM, SfMState, VariableLayout
+from codeslam.slam.reprojection import ReprojectionTerm
+
+
+def fixed_depth_decoder(decoder: LinearDecoder, code: torch.Tensor) -> LinearDecoder:
+    """The decoder's proximity at ``code`` on every level as a decoder of code size 1 with a zero Jacobian:
+    tracking holds the keyframe's depth fixed, so this keeps the per-iteration decoding (``prox0 + J c``, a
+    (C, H, W) contraction) out of the solver's loop."""
+    code = code.to(dtype=decoder.levels[0].jac.dtype, device=decoder.levels[0].jac.device)
+    levels = tuple(
+        DecoderLevel(decoder.prox(code, k), torch.zeros((1, *lvl.prox0.shape), dtype=lvl.jac.dtype,
+                                                          device=lvl.jac.device), lvl.uncertainty)
+        for k, lvl in enumerate(decoder.levels)
+    )
+    return LinearDecoder(levels, decoder.avg_depth)
+
+
+# ---- the keyframe's side: fixed for every frame tracked against it ---------------------------------------------
+
+
+@dataclass(frozen=True)
+class ReferenceLevel:
+    """The keyframe at one pyramid level, as tracking reads it. N = H W pixels, row-major.
+
+    Attributes:
+        gray: (N,) intensities I_A[u].
+        xyz: (3, N) points ``pi^-1(u, D_A[u])`` in A's camera frame (depth decoded at the code), one row per axis.
+        ok: (N,) bool, valid depth and a real image pixel (loss (i) on A's side).
+        slant: (N,) loss (iv) weight.
+    """
+
+    gray: torch.Tensor
+    xyz: torch.Tensor
+    ok: torch.Tensor
+    slant: torch.Tensor
+
+
+class TrackingReference:
+    """What tracking needs of a keyframe whose depth is decoded at ``code`` (C,), per pyramid level in ``levels``,
+    built once and reused for every frame tracked against it (``cfg`` gives the slant threshold). ``matches``
+    tells whether it still describes a keyframe and code (the window replaces a keyframe's code after each
+    solve)."""
+
+    def __init__(self, keyframe: Keyframe, code: torch.Tensor, levels: Sequence[int], cfg: SfMConfig,
+                 dtype: torch.dtype, device: torch.device) -> None:
+        self.keyframe = keyframe
+        self.code = code.detach().to(dtype=dtype, device=device).clone()
+        self.dtype, self.device = dtype, device
+        fixed = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, self.code),
+                         keyframe.valid)
+        self.levels: dict[int, ReferenceLevel] = {}
+        for lvl, data in build_levels([fixed], sorted(set(levels)), dtype, device).items():
+            depth = prox_to_depth(data.prox0, data.avg_depth[:, None, None, None])  # (1, 1, H, W), Eq. 4 inverted
+            d_A = depth.reshape(-1)  # (N,) D_A[u]
+            ok = d_A > 0
+            if data.gray_valid is not None:
+                ok = ok & (data.gray_valid.reshape(-1) > 0.5)  # (i): real pixels of A only
+            ray = unproject_jac_depth(data.uv, data.params[0])  # (N, 3)
+            self.levels[lvl] = ReferenceLevel(
+                gray=data.gray.reshape(-1),
+                xyz=(ray * d_A.unsqueeze(-1)).T.contiguous(),  # pi^-1(u, D_A[u]) (Eq. 5), (3, N)
+                ok=ok,
+                slant=slant_weight(depth, data.params, cfg.slant_cos_min).reshape(-1),  # (iv)
+            )
+
+    def matches(self, keyframe: Keyframe, code: torch.Tensor) -> bool:
+        """Whether this reference was built for ``keyframe`` (the same object) at the same code values."""
+        return keyframe is self.keyframe and torch.equal(code.to(dtype=self.dtype, device=self.device), self.code)
+
+
+# ---- the frame's side: built once per frame -------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FrameLevel:
+    """The frame at one pyramid level. stack: (1, K, H, W) what one bilinear lookup reads: grey, its Sobel
+    gradients d/du and d/dv and, when the frame has a validity mask, its real-pixel mask (K = 3 or 4); params: (4,)
+    intrinsics (fx, fy, cx, cy) at this level."""
+
+    stack: torch.Tensor
+    params: torch.Tensor
+
+    @property
+    def height(self) -> int:
+        return self.stack.shape[-2]
+
+    @property
+    def width(self) -> int:
+        return self.stack.shape[-1]
+
+
+class FramePyramid:
+    """The pyramid levels ``levels`` of a frame to be tracked: ``image`` (1, H, W) grey or (3, H, W) RGB seen by
+    ``camera``, ``valid`` (H, W) bool its real pixels (None: all). The same pyramid, gradients and mask as
+    :func:`~codeslam.sfm.keyframes.build_levels`, for the one image."""
+
+    def __init__(self, image: torch.Tensor, camera: PinholeCamera, valid: torch.Tensor | None,
+                 levels: Sequence[int], dtype: torch.dtype, device: torch.device) -> None:
+        img = image.to(dtype=dtype, device=device)
+        img = img if img.dim() == 3 else img[None]
+        gray = (rgb_to_gray(img[None]) if img.shape[0] == 3 else img[None]).contiguous()  # (1, 1, H, W)
+        n_levels = max(levels) + 1
+        pyr = image_pyramid(gray, n_levels)
+        valid_pyr = None if valid is None else image_pyramid(valid.to(dtype=dtype, device=device)[None, None],
+                                                             n_levels)
+        cams = pyramid_cameras(camera, n_levels)
+        self.levels: dict[int, FrameLevel] = {}
+        for lvl in sorted(set(levels)):
+            g = pyr[lvl].contiguous()
+            chans = [g, image_gradients(g)[:, 0]]  # (1, 1 + 2, H, W)
+            if valid_pyr is not None:
+                chans.append(real_pixels(valid_pyr[lvl]))
+            self.levels[lvl] = FrameLevel(torch.cat(chans, dim=1), cams[lvl].params(dtype, device))
+
+
+# ---- residuals and Jacobian -------------------------------------------------------------------------------------
+
+
+@dataclass
+class AlignmentEvaluation:
+    """The photometric residuals of one level at a state, and what their Jacobian reuses (N pixels).
+
+    r: (N,) residuals (0 where masked); valid: (N,) bool; w: (N,) IRLS weights ``slant rho'(s)/s / sigma^2`` (0
+    where masked); sigma: () the photometric sigma; R_BA (3, 3), t_BA (3,): the relative pose; x: (3, N) the
+    points in B; gray_B: (N,) I_B[v]; grad_B: (2, N) gradient of I_B at v (d/du, d/dv); gain: () exp(a); cost: ()
+    the robust photometric cost (masked rows priced at the Huber threshold, loss (i)); keypoints: what
+    :meth:`KeypointTerm.evaluate` gave at the same pose (None without keypoints).
+    """
+
+    r: torch.Tensor
+    valid: torch.Tensor
+    w: torch.Tensor
+    sigma: torch.Tensor
+    R_BA: torch.Tensor
+    t_BA: torch.Tensor
+    x: torch.Tensor
+    gray_B: torch.Tensor
+    grad_B: torch.Tensor
+    gain: torch.Tensor
+    cost: torch.Tensor
+    keypoints: tuple[torch.Tensor, ...] | None = None
+
+
+def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Tensor, t_BA: torch.Tensor,
+                          affine: torch.Tensor | None, cfg: SfMConfig) -> AlignmentEvaluation:
+    """The keyframe's pixels warped into the frame by ``(R_BA, t_BA)`` ((3, 3), (3,): maps A's points into B),
+    with ``affine`` (2,) (log-gain, bias), or None for no brightness correction: residuals, masks, IRLS weights
+    and robust cost, as :func:`~codeslam.sfm.residuals.evaluate_pairs` and
+    :func:`~codeslam.sfm.residuals.robust_weights` give them for the pair (keyframe, frame), with the same
+    arithmetic for the pixel positions (the masks at the border depend on their last bit: from the identity a
+    pixel lands exactly on it). Differentiable in the pose and ``affine`` (masks and weights are not)."""
+    N = ref.gray.shape[0]
+    H, W = frame.height, frame.width
+    zero = torch.zeros((), dtype=ref.gray.dtype, device=ref.gray.device)
+    x = torch.addmm(t_BA.unsqueeze(-1), R_BA, ref.xyz)  # Eq. 11: x = R pi^-1(u, d) + t, (3, N)
+    z = x[2]
+    fx, fy, cx, cy = frame.params
+    u = fx * x[0] / z + cx  # Eq. 5: v = pi(x), as codeslam.geometry.camera.project
+    v = fy * x[1] / z + cy
+    # (i) masks: inside B (minus the border), in front of B, valid depth and real pixels of A (inside_image's
+    # test as a clamp; NaN fails it, so a non-finite v is masked too).
+    b = cfg.border
+    valid = (u == u.clamp(b, W - 1 - b)) & (v == v.clamp(b, H - 1 - b)) & (z > MIN_DEPTH) & ref.ok
+    uv = torch.stack([u, v], dim=-1)  # (N, 2)
+    # The lookup of codeslam.geometry.image.bilinear_sample at v (the paper's square brackets); masked points are
+    # moved into the image (finite) and their values never used.
+    grid = pixels_to_grid(uv, H, W).clamp(-2.0, 2.0).nan_to_num(0.0)
+    sampled = F.grid_sample(frame.stack, grid.view(1, 1, N, 2), mode="bilinear", padding_mode="zeros",
+                            align_corners=True).view(-1, N)  # (K, N)
+    gray_B, grad_B = sampled[0], sampled[1:3]
+    if sampled.shape[0] > 3:
+        valid = valid & (sampled[3] > BILINEAR_ALL_VALID)  # (i): all four bilinear neighbours real pixels
+    if cfg.gradient_mode == "interpolant":  # the exact slope of the lookup instead of the Sobel image's value
+        uv_safe = torch.where(valid.unsqueeze(-1), uv, torch.zeros_like(uv))
+        grad_B = interpolant_gradient(frame.stack[:, :1], uv_safe.unsqueeze(0))[0, 0]  # (2, N)
+    vf = valid.to(ref.gray.dtype)
+    if affine is None:
+        gain, bias = torch.ones_like(zero), zero
+    else:
+        gain, bias = torch.exp(affine[0]), affine[1]
+    r = (ref.gray - (gain * gray_B + bias)) * vf  # Eq. 13 with affine brightness (Sec. 5.2), 0 where masked
+    sigma = torch.full_like(zero, cfg.sigma_photometric)  # (ii)
+    k = torch.full_like(zero, cfg.huber_photometric)
+    rho, irls = huber_cost_and_weight(r / sigma, k)  # (iii); masked rows have r = 0, so rho = 0
+    w = ref.slant * irls * vf / sigma**2  # (iv), the IRLS weight
+    cost = (ref.slant * rho).sum() + 0.5 * k * k * (N - vf.sum())  # masked rows cost rho(k) (loss (i))
+    return AlignmentEvaluation(r, valid, w, sigma, R_BA, t_BA, x, gray_B, grad_B, gain, cost)
+
+
+def photometric_jacobian(x: torch.Tensor, grad_B: torch.Tensor, gray_B: torch.Tensor, gain: torch.Tensor,
+                         params: torch.Tensor) -> torch.Tensor:
+    """Jacobian of photometric residuals ``r = I_A[u] - (exp(a) I_B[v] + b)`` w.r.t. the left increment
+    ``xi_BA = (rho, phi)`` of ``T_BA`` and the affine parameters (a, b).
+
+    x: (3, M) the warped points in B; grad_B: (2, M) the image gradient of I_B at v (held fixed: the Sobel image's
+    value, or the interpolant's slope); gray_B: (M,) I_B[v]; gain: () exp(a); params: (4,) B's intrinsics
+    -> (8, M), one row per variable (rho, phi, a, b).
+    """
+    fx, fy = params[0], params[1]
+    inv_z = 1.0 / x[2]
+    dr_dv = -gain * grad_B  # (2, M): - alpha dI_B[v]/dv
+    # dr/dx = dr/dv dpi/dx with dpi/dx = [[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]]: the factor of Eqs. 7-8.
+    a_x = dr_dv[0] * fx * inv_z
+    a_y = dr_dv[1] * fy * inv_z
+    a_z = -(a_x * x[0] + a_y * x[1]) * inv_z
+    rows = [
+        a_x, a_y, a_z,  # Eq. 7: d/d t
+        x[1] * a_z - x[2] * a_y, x[2] * a_x - x[0] * a_z, x[0] * a_y - x[1] * a_x,  # Eq. 8 in SE(3) left form: x x a
+        -gain * gray_B, -torch.ones_like(gray_B),  # d/d(a, b)
+    ]
+    return torch.stack(rows)
+
+
+def frame_pose_map(R_BA: torch.Tensor, t_BA: torch.Tensor) -> torch.Tensor:
+    """(8, 8) ``d (xi_BA, a, b) / d (xi_B, a, b)``: with the keyframe at the origin ``T_BA = T_kf^-1`` moves by
+    ``-Ad_{T_BA}`` of the frame's left increment (:func:`~codeslam.sfm.warp.relative_pose_jacobians`), ``Ad_T =
+    [[R, t^ R], [0, R]]`` (:func:`~codeslam.geometry.lie.se3_adjoint`); the affine parameters map to themselves."""
+    M = torch.eye(POSE_DIM + AFFINE_DIM, dtype=R_BA.dtype, device=R_BA.device)
+    M[:3, :3] = -R_BA
+    M[:3, 3:6] = -(hat(t_BA) @ R_BA)
+    M[3:6, 3:6] = -R_BA
+    return M
+
+
+# ---- matched keypoints --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class KeypointTerm:
+    """The reprojection residuals of a :class:`~codeslam.slam.reprojection.ReprojectionTerm` between the keyframe
+    (frame 0, at the origin) and the tracked frame (frame 1), laid out (channels, M) for the tracker's loop; the same
+    cost (``weight rho(|pi(T_BA X_A) - u_B| / sigma)``, points behind B priced at the Huber threshold) and IRLS
+    weights.
+
+    Attributes: xyz (3, M) the points X_A in the keyframe; uv (2, M) their observed pixels in the frame's feature
+    camera; sigma (M,) their pixel noise; params (4,) the feature camera's intrinsics; huber (sigmas), weight.
+    """
+
+    xyz: torch.Tensor
+    uv: torch.Tensor
+    sigma: torch.Tensor
+    params: torch.Tensor
+    huber: float
+    weight: float
+
+    @classmethod
+    def from_term(cls, term: ReprojectionTerm, dtype: torch.dtype, device: torch.device) -> KeypointTerm:
+        """``term`` must join frame 0 (points) and frame 1 (pixels) of the tracking state."""
+        if (term.a, term.b) != (0, 1) or type(term) is not ReprojectionTerm:
+            raise ValueError("KeypointTerm: a ReprojectionTerm from frame 0 (the keyframe) to frame 1 is needed")
+        return cls(term.xyz_a.to(dtype=dtype, device=device).T.contiguous(),
+                   term.uv_b.to(dtype=dtype, device=device).T.contiguous(), term.sigma.to(dtype=dtype, device=device),
+                   term.camera.params(dtype, device), float(term.huber), float(term.weight))
+
+    def evaluate(self, R_BA: torch.Tensor, t_BA: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """-> cost (), residuals r (2, M) in pixels, the points x (3, M) in B and IRLS weights (M,) (0 behind B)."""
+        x = torch.addmm(t_BA.unsqueeze(-1), R_BA, self.xyz)  # x = T_BA X_A (the paper's Eq. 5 with known depth)
+        fx, fy, cx, cy = self.params
+        r = torch.stack([fx * x[0] / x[2] + cx, fy * x[1] / x[2] + cy]) - self.uv  # r = pi(x) - u_B
+        front = x[2] > MIN_KEYPOINT_DEPTH
+        rho, irls = huber_cost_and_weight(r.norm(dim=0) / self.sigma, self.huber)
+        cost = torch.where(front, rho, torch.full_like(rho, 0.5 * self.huber**2))
+        w = torch.where(front, irls / self.sigma**2, torch.zeros_like(irls))
+        return self.weight * cost.sum(), r, x, self.weight * w
+
+    def jacobian(self, x: torch.Tensor) -> torch.Tensor:
+        """x (3, M) the points in B -> (6, 2, M) ``d r / d xi_BA`` (left increment of T_BA): each residual row a
+        (a row of d pi / d x) gives ``[a, x x a]`` (Eqs. 7-8, as :func:`~codeslam.sfm.warp.pose_row`)."""
+        fx, fy = self.params[0], self.params[1]
+        inv_z = 1.0 / x[2]
+        zero = torch.zeros_like(inv_z)
+        a = torch.stack([torch.stack([fx * inv_z, zero, -fx * x[0] * inv_z * inv_z]),  # d u / d x, (3, M)
+                         torch.stack([zero, fy * inv_z, -fy * x[1] * inv_z * inv_z])], dim=1)  # (3, 2, M)
+        x_ = x.unsqueeze(1).expand_as(a)
+        return torch.cat([a, torch.linalg.cross(x_, a, dim=0)])  # (6, 2, M)
+
+
+# ---- the problem of levenberg_marquardt ---------------------------------------------------------------------
+
+
+@dataclass
+class TrackingState:
+    """The free variables: T_kf (4, 4) the frame's pose in the keyframe, affine (2,) the pair's (log-gain, bias).
+    ``retract`` is :meth:`~codeslam.sfm.variables.SfMState.retract` for the layout ``[pose 1, affine 0]``."""
+
+    T_kf: torch.Tensor
+    affine: torch.Tensor
+
+    @classmethod
+    def from_sfm(cls, state: SfMState) -> TrackingState:
+        return cls(state.poses[1], state.affine[0])
+
+    @property
+    def poses(self) -> torch.Tensor:
+        """(2, 4, 4) the keyframe at the origin and the frame, as the generic state holds them."""
+        return torch.stack([torch.eye(4, dtype=self.T_kf.dtype, device=self.T_kf.device), self.T_kf])
+
+    def to_sfm(self) -> SfMState:
+        """The generic state (codes unused, of size 1), what the extra terms read."""
+        return SfMState(self.poses, self.T_kf.new_zeros(2, 1), self.affine.unsqueeze(0))
+
+    def retract(self, layout: VariableLayout, delta: torch.Tensor) -> TrackingState:
+        """``T <- exp(xi) T`` (left increment) with ``xi = delta[:6]``, ``affine + delta[6:]`` (if present)."""
+        d = delta.to(self.T_kf.dtype)
+        affine = self.affine + d[POSE_DIM:] if d.shape[0] > POSE_DIM else self.affine
+        return TrackingState(se3_exp_host(d[:POSE_DIM]) @ self.T_kf, affine)
+
+
+class TrackingProblem:
+    """One pyramid level of the tracking cost for :func:`~codeslam.sfm.solver.levenberg_marquardt` over a
+    :class:`TrackingState` and the layout ``[pose 1, affine 0]`` (``[pose 1]`` without affine brightness) of the
+    generic problem (pose 0 the keyframe at the origin, pose 1 the frame, affine 0 the pair).
+
+    ref, frame: the level of the keyframe and of the frame; cfg: the photometric settings and the affine prior;
+    keypoints: the matched keypoints' reprojection residuals (None: none); terms: other costs with ``cost(state)``
+    and ``add_to(H, g, layout, state)`` on the generic state (the motion prior).
+    """
+
+    def __init__(self, ref: ReferenceLevel, frame: FrameLevel, cfg: SfMConfig, keypoints: KeypointTerm | None = None,
+                 terms: Sequence = ()) -> None:
+        self.ref, self.frame, self.cfg, self.keypoints, self.terms = ref, frame, cfg, keypoints, list(terms)
+        self._evaluated: list[tuple[TrackingState, float, AlignmentEvaluation]] = []
+
+    def evaluate(self, state: TrackingState) -> tuple[float, AlignmentEvaluation]:
+        R, t = state.T_kf[:3, :3], state.T_kf[:3, 3]
+        R_BA = R.T  # T_BA = T_wB^-1 T_wA = T_kf^-1 with the keyframe at the origin
+        t_BA = -(R_BA @ t)
+        affine = state.affine if self.cfg.affine_brightness else None
+        ev = photometric_residuals(self.ref, self.frame, R_BA, t_BA, affine, self.cfg)
+        cost = ev.cost
+        if self.cfg.affine_brightness:  # Gaussian prior on (log-gain, bias)
+            cost = cost + 0.5 * (state.affine / state.affine.new_tensor(self.cfg.affine_prior_sigma)).square().sum()
+        if self.keypoints is not None:
+            ev.keypoints = self.keypoints.evaluate(R_BA, t_BA)
+            cost = cost + ev.keypoints[0]
+        if self.terms:
+            generic = state.to_sfm()
+            for term in self.terms:
+                cost = cost + term.cost(generic).to(cost.dtype)
+        c = float(cost)
+        self._evaluated.append((state, c, ev))
+        return c, ev
+
+    def evaluation(self, state: TrackingState) -> tuple[float, AlignmentEvaluation]:
+        """The cost and evaluation at ``state`` (one this problem evaluated, e.g. the solver's result, reused)."""
+        for s, c, ev in self._evaluated:
+            if s is state:
+                return c, ev
+        return self.evaluate(state)
+
+    def linearize(self, state: TrackingState, ev: AlignmentEvaluation, layout: VariableLayout,
+                  profile: dict | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        idx = ev.valid.nonzero().squeeze(-1)  # the M valid pixels; the others have no weight
+        J = photometric_jacobian(ev.x.index_select(1, idx), ev.grad_B.index_select(1, idx),
+                                 ev.gray_B.index_select(0, idx), ev.gain, self.frame.params)  # (8, M): xi_BA, a, b
+        Jw = J * ev.w.index_select(0, idx)
+        H_rel = Jw @ J.T  # (8, 8) J^T W J
+        g_rel = Jw @ ev.r.index_select(0, idx)  # (8,) J^T W r
+        if self.keypoints is not None:  # in the same relative coordinates, before the map to the frame's pose
+            _, r, x, w = ev.keypoints
+            Jk = self.keypoints.jacobian(x).reshape(POSE_DIM, -1)  # (6, 2 M), rows u then v
+            Jkw = Jk * w.repeat(2)
+            H_rel[:POSE_DIM, :POSE_DIM] += Jkw @ Jk.T
+            g_rel[:POSE_DIM] += Jkw @ r.reshape(-1)
+        M = frame_pose_map(ev.R_BA, ev.t_BA)
+        n = layout.dim  # the frame's pose, then (with affine brightness) the pair's affine parameters
+        H = (M.T @ H_rel @ M)[:n, :n]
+        g = (M.T @ g_rel)[:n]
+        if self.cfg.affine_brightness:
+            inv_var = 1.0 / H.new_tensor(self.cfg.affine_prior_sigma) ** 2
+            H[POSE_DIM:, POSE_DIM:] += torch.diag(inv_var)
+            g[POSE_DIM:] += inv_var * state.affine.to(g.dtype)
+        if self.terms:
+            generic = state.to_sfm()
+            for term in self.terms:
+                term.add_to(H, g, layout, generic)
+        return H, g
