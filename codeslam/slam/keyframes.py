@@ -1,6 +1,7 @@
 """Keyframe selection (paper Sec. 4.3: "once a certain baseline is achieved we add a keyframe"), PTAM-like: a
 tracked frame becomes a keyframe when it has moved far enough from the last keyframe, relative to the scene's
-depth (parallax), when it has turned far enough, or when too little of the keyframe is still in view."""
+depth (parallax), when it has turned far enough, when too little of the keyframe is still in view, or when too few
+of the keyframe's keypoints are still matched (ORB-SLAM's criterion)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from codeslam.slam.config import KeyframeConfig
 
 @dataclass(frozen=True)
 class KeyframeDecision:
-    """Whether to add a keyframe and why. reason: 'baseline', 'rotation', 'overlap' or '' (no keyframe), or
+    """Whether to add a keyframe and why. reason: 'baseline', 'rotation', 'overlap', 'features' or '' (no keyframe), or
     'tracking failed' / 'too soon' when a criterion held but the frame is not eligible."""
 
     add: bool
@@ -23,6 +24,7 @@ class KeyframeDecision:
     baseline_ratio: float
     rotation_deg: float
     overlap: float
+    urgent: bool = False
 
 
 def motion_since_keyframe(T_kf: torch.Tensor, median_depth: float) -> tuple[float, float]:
@@ -41,24 +43,34 @@ def decide_keyframe(
     frames_since_keyframe: int,
     tracking_ok: bool,
     cfg: KeyframeConfig,
+    feature_inliers: int | None = None,
 ) -> KeyframeDecision:
     """The keyframe decision for a tracked frame.
 
     T_kf (4, 4): the frame's pose in the last keyframe; median_depth: that keyframe's median decoded depth;
     overlap: fraction of the keyframe's pixels visible in the frame (from the tracker); frames_since_keyframe:
-    1 for the frame right after the keyframe.
+    1 for the frame right after the keyframe; feature_inliers: ORB + PnP inliers of the frame against the
+    keyframe (None: no feature tracking ran, the criterion does not apply).
     """
     ratio, rot = motion_since_keyframe(T_kf, median_depth)
+    # Urgent: the keyframe is leaving the view (twice a threshold, or little overlap). Such a frame becomes a
+    # keyframe even right after the last one, and parallel mapping waits for it: measured on the HoloLens walk
+    # at every second frame, the frame after a keyframe had turned 23 deg from it and the next one 25 deg more;
+    # tracked against the old keyframe that frame had nothing left in view.
+    urgent = (ratio >= 2 * cfg.min_baseline_ratio or rot >= 2 * cfg.max_rotation_deg or overlap < cfg.urgent_overlap
+              or (feature_inliers is not None and feature_inliers < cfg.min_feature_inliers))
     if ratio >= cfg.min_baseline_ratio:
         reason = "baseline"
     elif rot >= cfg.max_rotation_deg:
         reason = "rotation"
     elif overlap < cfg.min_overlap:
         reason = "overlap"
+    elif feature_inliers is not None and feature_inliers < cfg.min_feature_inliers:
+        reason = "features"
     else:
         return KeyframeDecision(False, "", ratio, rot, overlap)
     if not tracking_ok:
-        return KeyframeDecision(False, "tracking failed", ratio, rot, overlap)
-    if frames_since_keyframe < cfg.min_frames_between:
-        return KeyframeDecision(False, "too soon", ratio, rot, overlap)
-    return KeyframeDecision(True, reason, ratio, rot, overlap)
+        return KeyframeDecision(False, "tracking failed", ratio, rot, overlap, urgent)
+    if frames_since_keyframe < cfg.min_frames_between and not urgent:
+        return KeyframeDecision(False, "too soon", ratio, rot, overlap, urgent)
+    return KeyframeDecision(True, reason, ratio, rot, overlap, urgent)

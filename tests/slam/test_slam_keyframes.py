@@ -49,9 +49,34 @@ def test_overlap_threshold():
 
 
 def test_no_keyframe_on_failed_tracking_or_too_soon():
-    far = _pose((0.5, 0.0, 0.0))
+    far = _pose((0.3, 0.0, 0.0))  # baseline ratio 0.15: above 0.1, below twice that
     d = decide_keyframe(far, 2.0, 0.9, 5, False, CFG)
     assert not d.add and d.reason == "tracking failed"
     d = decide_keyframe(far, 2.0, 0.9, 1, True, CFG)
-    assert not d.add and d.reason == "too soon"
+    assert not d.add and d.reason == "too soon" and not d.urgent
     assert decide_keyframe(far, 2.0, 0.9, 2, True, CFG).add
+
+
+@pytest.mark.parametrize("case", ["baseline", "rotation", "overlap", "features"])
+def test_an_urgent_keyframe_is_made_even_right_after_the_last(case):
+    T, overlap, inliers = {
+        "baseline": (_pose((0.5, 0.0, 0.0)), 0.9, None),  # twice the baseline ratio
+        "rotation": (_pose(rot_deg=(0.0, 21.0, 0.0)), 0.9, None),  # twice the rotation
+        "overlap": (_pose(), 0.3, None),  # below urgent_overlap (0.45)
+        "features": (_pose(), 0.9, 10),  # matches thinning out
+    }[case]
+    d = decide_keyframe(T, 2.0, overlap, 1, True, CFG, inliers)
+    assert d.add and d.urgent and d.reason == case
+    assert not decide_keyframe(T, 2.0, overlap, 1, False, CFG, inliers).add  # never on failed tracking
+
+
+def test_feature_threshold_applies_only_where_features_were_matched():
+    cfg = KeyframeConfig(min_baseline_ratio=0.1, max_rotation_deg=10.0, min_overlap=0.6, min_frames_between=2,
+                         min_feature_inliers=50)
+    assert not decide_keyframe(_pose(), 2.0, 0.9, 5, True, cfg, 50).add
+    d = decide_keyframe(_pose(), 2.0, 0.9, 5, True, cfg, 49)
+    assert d.add and d.reason == "features"
+    assert decide_keyframe(_pose(), 2.0, 0.9, 5, True, cfg, 0).add  # features found, none matched
+    assert not decide_keyframe(_pose(), 2.0, 0.9, 5, True, cfg, None).add  # no feature tracking ran
+    off = KeyframeConfig(min_feature_inliers=0)
+    assert not decide_keyframe(_pose(), 2.0, 0.9, 5, True, off, 0).add

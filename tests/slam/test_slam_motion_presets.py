@@ -37,3 +37,29 @@ def test_a_preset_path_is_tracked_on_every_frame(motion):
         assert path > 1.5 and ev["ate_sim3_rmse"] <= 0.01 * path, (ev["ate_sim3_rmse"], path)
     else:  # turning on the spot: the orientation is what matters (measured 0.04 deg)
         assert ev["rot_aligned_rmse_deg"] < 0.5 and ev["ate_se3_rmse"] < 0.01, ev
+
+
+@pytest.mark.parametrize("promote", [True, False])
+def test_a_frame_lost_against_its_keyframe_is_tracked_against_the_previous_frame(promote):
+    """With keyframes asked for by no criterion, the fast turn leaves the first keyframe's view; the first frame
+    that cannot be tracked against it makes the frame before it a keyframe ('next frame lost') and is tracked
+    against that instead (recovery.promote_previous). Without that, the same frames are lost."""
+    from dataclasses import replace
+
+    from codeslam.slam.config import KeyframeConfig, RecoveryConfig
+
+    frames = 16
+    seq = MemorySequence(preset_frames(21, frames, "fast-turn", 10.0))
+    never = KeyframeConfig(min_baseline_ratio=1e3, max_rotation_deg=1e3, min_overlap=0.0, urgent_overlap=0.0,
+                           min_feature_inliers=0)
+    cfg = replace(SLAMConfig(), keyframes=never, recovery=replace(RecoveryConfig(), promote_previous=promote,
+                                                                  relocalise=False))
+    run = run_slam(seq, CodeSLAM(cfg, standin_depth_model()), seq.frames[0].camera)
+    failed = [r.index for r in run.results if not r.tracking_ok]
+    promoted = [r.index for r in run.results if r.is_keyframe and r.reason == "next frame lost"]
+    if promote:
+        assert failed == [] and len(promoted) >= 1, (failed, promoted)
+        ev = evaluate_run(run.trajectory, ground_truth(seq, range(frames)))
+        assert ev["rot_aligned_rmse_deg"] < 0.5, ev
+    else:
+        assert failed and promoted == [], (failed, promoted)
