@@ -162,12 +162,13 @@ def project_points(xyz: np.ndarray, T_ba: np.ndarray, camera: PinholeCamera) -> 
 
 
 def keyframe_points(uv: np.ndarray, feature_camera: PinholeCamera, depth: torch.Tensor,
-                    depth_camera: PinholeCamera, max_depth_ratio: float = 1.15) -> np.ndarray:
+                    depth_camera: PinholeCamera, max_depth_ratio: float = 1.15,
+                    max_depth: float = math.inf) -> np.ndarray:
     """3D points (in the keyframe's camera frame) of keypoints ``uv`` (N, 2) of the feature camera, from the
     keyframe's ``depth`` (H, W) seen by ``depth_camera`` (same field of view, fewer pixels). Depth is read
     bilinearly; a keypoint whose four depth neighbours differ by more than ``max_depth_ratio`` (a depth edge,
-    where the interpolated depth belongs to neither surface) or include an invalid depth gets NaN.
-    Returns (N, 3) float64."""
+    where the interpolated depth belongs to neither surface), include an invalid depth or lie beyond
+    ``max_depth`` gets NaN. Returns (N, 3) float64."""
     d = depth.detach().to(device="cpu", dtype=torch.float64).numpy()
     H, W = d.shape
     s = feature_camera.width / depth_camera.width
@@ -181,7 +182,7 @@ def keyframe_points(uv: np.ndarray, feature_camera: PinholeCamera, depth: torch.
          + q[:, 3] * fu * fv)
     ok = np.isfinite(q).all(1) & (q > 0).all(1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        ok &= q.max(1) <= max_depth_ratio * q.min(1)
+        ok &= (q.max(1) <= max_depth_ratio * q.min(1)) & (q.max(1) <= max_depth)
     x = (uv[:, 0] - feature_camera.cx) / feature_camera.fx * z
     y = (uv[:, 1] - feature_camera.cy) / feature_camera.fy * z
     xyz = np.stack([x, y, z], 1)

@@ -10,6 +10,7 @@ keyframe's 3D points come from its decoded depth at its current code (:func:`key
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -104,8 +105,11 @@ class SparseTracker:
         return self.extract(to_uint8(hi), None if valid is None else valid.numpy())
 
     def points(self, features: Features, depth: torch.Tensor) -> np.ndarray:
-        """(N, 3) 3D points of a keyframe's keypoints from its depth map (network camera)."""
-        return keyframe_points(features.uv, self.camera, depth, self.depth_camera)
+        """(N, 3) 3D points of a keyframe's keypoints from its depth map (network camera); none beyond
+        ``max_point_depth`` times the map's median depth."""
+        valid = depth[torch.isfinite(depth) & (depth > 0)]
+        far = math.inf if valid.numel() == 0 else self.cfg.max_point_depth * float(valid.median())
+        return keyframe_points(features.uv, self.camera, depth, self.depth_camera, max_depth=far)
 
     def _pnp(self, xyz: np.ndarray, uv: np.ndarray, T_kf_init: torch.Tensor | None, min_inliers: int):
         T_init = None if T_kf_init is None else se3_inverse(T_kf_init.to(torch.float64)).numpy()

@@ -10,6 +10,7 @@ from slam_scene import synth_frames
 from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.lie import se3_inverse
 from codeslam.slam.features import (
+    Features,
     ORBExtractor,
     guided_mask,
     keyframe_points,
@@ -45,6 +46,23 @@ def test_keyframe_points_back_project_and_reject_depth_edges():
     assert np.isnan(xyz[1]).all()
     back = project_points(xyz[[0, 2]], np.eye(4), feat)
     assert np.allclose(back, uv[[0, 2]])
+    far = keyframe_points(uv, feat, depth, cam, max_depth=3.0)  # the 4 m plane is beyond the bound
+    assert np.allclose(far[0, 2], 2.0) and np.isnan(far[1:]).all()
+
+
+def test_keypoints_on_a_runaway_region_get_no_point():
+    """A region whose decoded depth ran to kilometres (the linear decoder's proximity near zero) gives its
+    keypoints no 3D point: PnP on them would place the next frame hundreds of metres away."""
+    from codeslam.slam.config import FeatureConfig
+    from codeslam.slam.frontend import SparseTracker
+
+    cam = canonical_camera(32, 24)
+    sparse = SparseTracker(FeatureConfig(), scaled_camera(cam, 4), cam)
+    depth = torch.full((24, 32), 2.0, dtype=torch.float64)
+    depth[:, 20:] = 15000.0
+    feats = Features(np.array([[20.0, 40.0], [110.0, 40.0]]), np.zeros((2, 32), np.uint8), np.zeros(2, np.int32))
+    xyz = sparse.points(feats, depth)
+    assert np.allclose(xyz[0, 2], 2.0) and np.isnan(xyz[1]).all()
 
 
 def test_orb_pnp_recovers_a_wide_baseline():
