@@ -131,27 +131,38 @@ class FrameLevel:
         return self.stack.shape[-1]
 
 
+def real_pixel_pyramid(valid: torch.Tensor, levels: Sequence[int], dtype: torch.dtype,
+                       device: torch.device) -> dict[int, torch.Tensor]:
+    """(H, W) bool, an image's real pixels -> per level in ``levels`` (1, 1, H_l, W_l): 1 where the pyramid pixel
+    comes from real pixels only, else 0 (as :func:`~codeslam.sfm.keyframes.build_levels`). The same for every
+    frame of a sequence whose reader masks a fixed border, so the tracker keeps the last one."""
+    pyr = image_pyramid(valid.to(dtype=dtype, device=device)[None, None], max(levels) + 1)
+    return {lvl: real_pixels(pyr[lvl]) for lvl in sorted(set(levels))}
+
+
 class FramePyramid:
     """The pyramid levels ``levels`` of a frame to be tracked: ``image`` (1, H, W) grey or (3, H, W) RGB seen by
-    ``camera``, ``valid`` (H, W) bool its real pixels (None: all). The same pyramid, gradients and mask as
+    ``camera``, ``valid`` (H, W) bool its real pixels (None: all), or ``real`` their
+    :func:`real_pixel_pyramid` computed before. The same pyramid, gradients and mask as
     :func:`~codeslam.sfm.keyframes.build_levels`, for the one image."""
 
     def __init__(self, image: torch.Tensor, camera: PinholeCamera, valid: torch.Tensor | None,
-                 levels: Sequence[int], dtype: torch.dtype, device: torch.device) -> None:
+                 levels: Sequence[int], dtype: torch.dtype, device: torch.device,
+                 real: dict[int, torch.Tensor] | None = None) -> None:
         img = image.to(dtype=dtype, device=device)
         img = img if img.dim() == 3 else img[None]
         gray = (rgb_to_gray(img[None]) if img.shape[0] == 3 else img[None]).contiguous()  # (1, 1, H, W)
         n_levels = max(levels) + 1
         pyr = image_pyramid(gray, n_levels)
-        valid_pyr = None if valid is None else image_pyramid(valid.to(dtype=dtype, device=device)[None, None],
-                                                             n_levels)
+        if real is None and valid is not None:
+            real = real_pixel_pyramid(valid, levels, dtype, device)
         cams = pyramid_cameras(camera, n_levels)
         self.levels: dict[int, FrameLevel] = {}
         for lvl in sorted(set(levels)):
             g = pyr[lvl].contiguous()
             chans = [g, image_gradients(g)[:, 0]]  # (1, 1 + 2, H, W)
-            if valid_pyr is not None:
-                chans.append(real_pixels(valid_pyr[lvl]))
+            if real is not None:
+                chans.append(real[lvl])
             self.levels[lvl] = FrameLevel(torch.cat(chans, dim=1), cams[lvl].params(dtype, device))
 
 

@@ -32,6 +32,7 @@ from codeslam.slam.alignment import (
     TrackingReference,
     TrackingState,
     fixed_depth_decoder,
+    real_pixel_pyramid,
 )
 from codeslam.slam.config import TrackerConfig
 from codeslam.slam.poses import project_to_se3
@@ -103,6 +104,7 @@ class PhotometricTracker:
             relative_cost_tolerance=cfg.relative_cost_tolerance,
         )
         self._references: list[TrackingReference] = []  # most recently used last
+        self._real_pixels: tuple | None = None  # (the frames' validity mask, (dtype, device), its pyramid)
 
     def reference(self, keyframe: Keyframe, code: torch.Tensor) -> TrackingReference:
         """The keyframe's tracking data at ``code`` (points, intensities, slant weights and masks per level), built
@@ -171,7 +173,8 @@ class PhotometricTracker:
         Returns (state, cost, valid (N,), r (N,), sigma, gray_A (N,), iterations) at the finest level."""
         cfg, sfm_cfg = self.cfg, self.sfm_cfg
         reference = self.reference(keyframe, code)
-        frame = FramePyramid(image, camera, valid, cfg.pyramid_levels, reference.dtype, reference.device)
+        real = None if valid is None else self._real_pixel_pyramid(valid, reference.dtype, reference.device)
+        frame = FramePyramid(image, camera, valid, cfg.pyramid_levels, reference.dtype, reference.device, real)
         current = TrackingState.from_sfm(state)
         keypoints, others = None, []
         for term in terms:  # the keypoints' residuals in the tracker's own layout, the motion prior as it is
@@ -187,6 +190,18 @@ class PhotometricTracker:
         cost, ev = problem.evaluation(current)  # the finest level at the final state (the solver evaluated it)
         return (current.to_sfm(), cost, ev.valid, ev.r, ev.sigma, reference.levels[cfg.pyramid_levels[-1]].gray,
                 iterations)
+
+    def _real_pixel_pyramid(self, valid: torch.Tensor, dtype: torch.dtype,
+                            device: torch.device) -> dict[int, torch.Tensor]:
+        """:func:`~codeslam.slam.alignment.real_pixel_pyramid` of a frame's validity mask, kept while the frames'
+        mask stays the same (a reader that masks a fixed border gives every frame the same one)."""
+        c = self._real_pixels
+        same = (c is not None and c[1] == (dtype, device) and c[0].shape == valid.shape
+                and c[0].device == valid.device and torch.equal(c[0], valid))
+        if not same:
+            self._real_pixels = (valid.clone(), (dtype, device),
+                                 real_pixel_pyramid(valid, self.cfg.pyramid_levels, dtype, device))
+        return self._real_pixels[2]
 
     def _align_generic(self, keyframe: Keyframe, code: torch.Tensor, image: torch.Tensor, camera: PinholeCamera,
                        valid: torch.Tensor | None, state: SfMState, layout: VariableLayout, terms: list):

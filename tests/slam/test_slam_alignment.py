@@ -195,6 +195,26 @@ def test_interpolant_gradients_track_alike():
     _same_result(res, float(frames[0].depth.median()), 1e-9, 1e-9, 1e-9)
 
 
+def test_validity_masks_track_alike_and_the_mask_pyramid_is_kept_while_the_mask_stays():
+    frames, trackers, kf, code = _scene()
+    depth = float(frames[0].depth.median())
+    valid = torch.ones(frames[0].camera.height, frames[0].camera.width, dtype=torch.bool)
+    valid[-3:] = False  # a border the reader could not fill
+    kf = Keyframe(kf.image, kf.camera, kf.decoder, valid)
+    dedicated = trackers["dedicated"]
+    for j, mask in ((1, valid), (2, valid.clone()), (3, valid.clone())):
+        if j == 3:
+            mask[10:20, 30:40] = False  # another mask: its pyramid is rebuilt
+        res = {s: t.track(kf, code, frames[j].gray, frames[j].camera, torch.eye(4, dtype=D), valid=mask)
+               for s, t in trackers.items()}
+        assert res["generic"].overlap < 0.95
+        _same_result(res, depth, 1e-9, 1e-9, 1e-9)
+        if j == 1:
+            kept = dedicated._real_pixels[2]
+        else:
+            assert (dedicated._real_pixels[2] is kept) == (j == 2)
+
+
 @pytest.fixture(scope="module")
 def tum_model():
     from codeslam.depthmodel import DepthModel
