@@ -278,32 +278,29 @@ def frame_pose_map(R_BA: torch.Tensor, t_BA: torch.Tensor) -> torch.Tensor:
 # ---- matched keypoints --------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
 class KeypointTerm:
     """The reprojection residuals of a :class:`~codeslam.slam.reprojection.ReprojectionTerm` between the keyframe
     (frame 0, at the origin) and the tracked frame (frame 1), laid out (channels, M) for the tracker's loop; the same
     cost (``weight rho(|pi(T_BA X_A) - u_B| / sigma)``, points behind B priced at the Huber threshold) and IRLS
-    weights.
+    weights. ``term`` must join frame 0 (points) and frame 1 (pixels) of the tracking state.
 
     Attributes: xyz (3, M) the points X_A in the keyframe; uv (2, M) their observed pixels in the frame's feature
-    camera; sigma (M,) their pixel noise; params (4,) the feature camera's intrinsics; huber (sigmas), weight.
+    camera; sigma (M,) their pixel noise; params (4,) the feature camera's intrinsics; huber () the threshold in
+    sigmas; weight.
     """
 
-    xyz: torch.Tensor
-    uv: torch.Tensor
-    sigma: torch.Tensor
-    params: torch.Tensor
-    huber: float
-    weight: float
-
-    @classmethod
-    def from_term(cls, term: ReprojectionTerm, dtype: torch.dtype, device: torch.device) -> KeypointTerm:
-        """``term`` must join frame 0 (points) and frame 1 (pixels) of the tracking state."""
+    def __init__(self, term: ReprojectionTerm, dtype: torch.dtype, device: torch.device) -> None:
         if (term.a, term.b) != (0, 1) or type(term) is not ReprojectionTerm:
             raise ValueError("KeypointTerm: a ReprojectionTerm from frame 0 (the keyframe) to frame 1 is needed")
-        return cls(term.xyz_a.to(dtype=dtype, device=device).T.contiguous(),
-                   term.uv_b.to(dtype=dtype, device=device).T.contiguous(), term.sigma.to(dtype=dtype, device=device),
-                   term.camera.params(dtype, device), float(term.huber), float(term.weight))
+        self.xyz = term.xyz_a.to(dtype=dtype, device=device).T.contiguous()
+        self.uv = term.uv_b.to(dtype=dtype, device=device).T.contiguous()
+        self.sigma = term.sigma.to(dtype=dtype, device=device)
+        self.params = term.camera.params(dtype, device)
+        self.huber = torch.tensor(float(term.huber), dtype=dtype, device=device)
+        self.weight = float(term.weight)
+        # Per evaluation only what depends on the pose: the constants of the robust cost computed once.
+        self._irls_scale = self.weight / self.sigma**2  # (M,)
+        self._behind_cost = 0.5 * self.huber * self.huber  # rho(k), the price of a point behind B
 
     def evaluate(self, R_BA: torch.Tensor, t_BA: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """-> cost (), residuals r (2, M) in pixels, the points x (3, M) in B and IRLS weights (M,) (0 behind B)."""
@@ -311,10 +308,10 @@ class KeypointTerm:
         fx, fy, cx, cy = self.params
         r = torch.stack([fx * x[0] / x[2] + cx, fy * x[1] / x[2] + cy]) - self.uv  # r = pi(x) - u_B
         front = x[2] > MIN_KEYPOINT_DEPTH
-        rho, irls = huber_cost_and_weight(r.norm(dim=0) / self.sigma, self.huber)
-        cost = torch.where(front, rho, torch.full_like(rho, 0.5 * self.huber**2))
-        w = torch.where(front, irls / self.sigma**2, torch.zeros_like(irls))
-        return self.weight * cost.sum(), r, x, self.weight * w
+        rho, irls = huber_cost_and_weight(torch.hypot(r[0], r[1]) / self.sigma, self.huber)  # |r| / sigma
+        cost = torch.where(front, rho, self._behind_cost)
+        w = torch.where(front, irls * self._irls_scale, torch.zeros_like(irls))
+        return self.weight * cost.sum(), r, x, w
 
     def jacobian(self, x: torch.Tensor) -> torch.Tensor:
         """x (3, M) the points in B -> (6, 2, M) ``d r / d xi_BA`` (left increment of T_BA): each residual row a
@@ -411,9 +408,9 @@ class TrackingProblem:
         g_rel = Jw @ ev.r.index_select(0, idx)  # (8,) J^T W r
         if self.keypoints is not None:  # in the same relative coordinates, before the map to the frame's pose
             _, r, x, w = ev.keypoints
-            Jk = self.keypoints.jacobian(x).reshape(POSE_DIM, -1)  # (6, 2 M), rows u then v
-            Jkw = Jk * w.repeat(2)
-            H_rel[:POSE_DIM, :POSE_DIM] += Jkw @ Jk.T
+            Jk = self.keypoints.jacobian(x)  # (6, 2, M)
+            Jkw = (Jk * w).reshape(POSE_DIM, -1)  # (6, 2 M), rows u then v, weighted
+            H_rel[:POSE_DIM, :POSE_DIM] += Jkw @ Jk.reshape(POSE_DIM, -1).T
             g_rel[:POSE_DIM] += Jkw @ r.reshape(-1)
         M = frame_pose_map(ev.R_BA, ev.t_BA)
         n = layout.dim  # the frame's pose, then (with affine brightness) the pair's affine parameters

@@ -179,7 +179,7 @@ class PhotometricTracker:
         keypoints, others = None, []
         for term in terms:  # the keypoints' residuals in the tracker's own layout, the motion prior as it is
             if type(term) is ReprojectionTerm and (term.a, term.b) == (0, 1):
-                keypoints = KeypointTerm.from_term(term, reference.dtype, reference.device)
+                keypoints = KeypointTerm(term, reference.dtype, reference.device)
             else:
                 others.append(term)
         iterations = 0

@@ -71,7 +71,7 @@ def _level_problem(lvl=1, gradient_mode="interpolant", with_keypoints=True):
     T_true = se3_inverse(frames[0].pose) @ frames[2].pose
     T_kf = se3_exp(torch.tensor([0.004, -0.003, 0.002, 0.003, -0.004, 0.002], dtype=D)) @ T_true
     state = TrackingState(T_kf, torch.tensor([0.05, -0.02], dtype=D))
-    kp = KeypointTerm.from_term(_keypoints(frames, 2), D, torch.device("cpu")) if with_keypoints else None
+    kp = KeypointTerm(_keypoints(frames, 2), D, torch.device("cpu")) if with_keypoints else None
     return TrackingProblem(ref, frame, tracker.sfm_cfg, kp), state
 
 
