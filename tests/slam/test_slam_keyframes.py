@@ -13,7 +13,8 @@ from codeslam.slam.config import KeyframeConfig
 from codeslam.slam.keyframes import decide_keyframe, motion_since_keyframe
 
 D = torch.float64
-CFG = KeyframeConfig(min_baseline_ratio=0.1, max_rotation_deg=10.0, min_overlap=0.6, min_frames_between=2)
+CFG = KeyframeConfig(min_baseline_ratio=0.1, max_rotation_deg=10.0, min_overlap=0.6, min_frames_between=2,
+                     min_feature_inliers=50)
 
 
 def _pose(t=(0.0, 0.0, 0.0), rot_deg=(0.0, 0.0, 0.0)):
