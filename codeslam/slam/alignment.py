@@ -16,7 +16,16 @@ prior and the extra terms (reprojection, motion prior). What makes it fast is wh
 * per-pixel quantities are stored (channels, N), the layout in which the small products and the elementwise
   operations are fast on a CPU, and the normal equations are one ``J (w J^T)`` product of the (8, M) Jacobian of
   the M valid pixels, mapped from the relative pose to the frame's pose by the adjoint (8x8), instead of the
-  generic block assembly.
+  generic block assembly;
+* the matched keypoints' reprojection residuals (:class:`KeypointTerm`) are evaluated in the same layout with the
+  same relative pose, and the retraction takes the exponential on the host
+  (:func:`~codeslam.geometry.lie.se3_exp_host`).
+
+Measured while writing it (TUM fr1/rpy frames 1-9 against frame 0, three times, one thread; the generic solver
+70-80 ms per frame): the keyframe cached with the generic evaluation's operations, 33 ms; the (channels, N)
+layout and masks as products instead of ``torch.where``, 24 ms; the retraction on the host instead of
+``se3_exp``'s ~60 tensor operations, 12 ms. With 300 matched keypoints the generic ``ReprojectionTerm`` costs
+~0.5 ms per evaluation and ~1.4 ms per linearisation on the loaded machine, :class:`KeypointTerm` ~0.15 ms each.
 
 :class:`TrackingProblem` has the ``evaluate`` / ``linearize`` interface of
 :func:`~codeslam.sfm.solver.levenberg_marquardt` and :class:`TrackingState` its ``retract``, so the damped
