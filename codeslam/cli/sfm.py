@@ -32,7 +32,7 @@ import typer
 
 from codeslam.cli.app import app
 from codeslam.cli.common import DatasetArg, Device, Format, Frames, JsonOut, OutDir, Threads, Weights
-from codeslam.errors import CodeSLAMError, ConfigError
+from codeslam.errors import ConfigError
 from codeslam.io import check_outputs
 
 PAIR_MODES = ("master", "all")
@@ -113,10 +113,11 @@ def sfm_command(
         # with frames 24 and 27: 38 deg off, depth 71% worse). It is left out, as a tracker drops such a frame.
         keep = [i for i in range(len(indices)) if i == m or pnp_inliers[i] > 0]
         left_out = [indices[i] for i in range(len(indices)) if i not in keep]
-        if len(keep) < 2:
-            raise CodeSLAMError(f"SfM: no frame of {indices} matched the master {master} (ORB + PnP); try "
-                                "--init identity or frames closer to the master")
-        if left_out:
+        if len(keep) < 2:  # nothing to match (tiny or textureless images): the paper's start for all
+            typer.echo(f"codeslam: warning: no frame matched the master {master} (ORB + PnP); starting from the "
+                       "identity", err=True)
+            poses_init, left_out = None, []
+        elif left_out:
             typer.echo(f"codeslam: warning: frames {left_out} left out: ORB + PnP found no pose against the master "
                        f"{master}", err=True)
             indices, cframes, keyframes = ([x[i] for i in keep] for x in (indices, cframes, keyframes))
