@@ -188,6 +188,38 @@ class DepthDecoder(nn.Module):
         mu[0] = self.heads[0](join(y, feats[0], self.linear))  # (B, 1, H, W)
         return mu
 
+    def code_directions(self, feats: list[torch.Tensor], basis: torch.Tensor) -> list[torch.Tensor]:
+        """Linear decoder only: ``D(I, c + d) - D(I, c)`` for the m code directions ``basis`` (m, C), per level
+        (B, m, H / 2^l, W / 2^l), finest first; with the unit codes as ``basis`` the columns of the code
+        Jacobian (Sec. 4.1). Every layer is ``W_y y + W_f f + W_yf (y * f) + b`` (:func:`join`), affine in the
+        decoder feature y, so a difference of two decodings obeys ``W_y dy + W_yf (dy * f)``: only those
+        weights, no bias, no image term, and no pass over the zero code. Written by hand because the batched
+        decoding of the zero and unit codes repeats the image terms C + 1 times (measured at 96x128, code 128:
+        0.44 -> 0.21 s with 2 threads, 0.63 -> 0.33 s with 1)."""
+        if not self.linear:
+            raise ValueError("code_directions needs the linear decoder (the nonlinear one's Jacobian varies)")
+        B, m = feats[0].shape[0], basis.shape[0]
+
+        def layer(conv: nn.Conv2d, dy: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+            K, w = dy.shape[1], conv.weight  # w: (out, 3K, 3, 3) over [y, f, y * f]
+            dyf = (dy.view(B, m, *dy.shape[1:]) * f[:, None]).flatten(0, 1)  # (B m, K, h, w): f of each image
+            return (F.conv2d(dy, w[:, :K], None, conv.stride, conv.padding)
+                    + F.conv2d(dyf, w[:, 2 * K :], None, conv.stride, conv.padding))
+
+        dy = (basis.to(self.fc.weight) @ self.fc.weight.T).view(1, m, -1, self.h16, self.w16)
+        dy = dy.expand(B, -1, -1, -1, -1).flatten(0, 1)  # (B m, w_3, H/16, W/16), image-major like the result
+        out: list[torch.Tensor] = [None] * NUM_LEVELS  # type: ignore[list-item]
+        for i, s in enumerate(range(NUM_SCALES, 0, -1)):  # the same walk as forward()
+            if s < NUM_SCALES:
+                dy = upsample2(dy)
+            dy = layer(self.convs[i], dy, feats[s])
+            if s < NUM_LEVELS:
+                head = self.heads[s]
+                out[s] = F.conv2d(dy, head.weight, None, head.stride, head.padding)
+        dy = F.conv_transpose2d(dy, self.deconv.weight, None, self.deconv.stride, self.deconv.padding)
+        out[0] = layer(self.heads[0], dy, feats[0])
+        return [o.view(B, m, *o.shape[-2:]) for o in out]
+
 
 class CodeNetwork(nn.Module):
     """The whole network. ``cfg`` is kept as ``self.config`` and saved with the weights."""
