@@ -88,17 +88,18 @@ def run_slam(
     process_s = 0.0
     t_start = time.perf_counter()
     try:
-        for n, i in enumerate(frames):
-            t0 = time.perf_counter()
-            frame = sequence[i]
-            t1 = time.perf_counter()
-            result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
-            process_s += time.perf_counter() - t1
-            result.timings_ms["read"] = 1e3 * (t1 - t0)
-            results.append(result)
-            visualizer.update(frame, result, system)
-            if progress is not None:
-                progress(n + 1, len(frames), result)
+        with system.tracking_threads():  # parallel: reading, too, keeps to the tracker's share of the cores
+            for n, i in enumerate(frames):
+                t0 = time.perf_counter()
+                frame = sequence[i]
+                t1 = time.perf_counter()
+                result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
+                process_s += time.perf_counter() - t1
+                result.timings_ms["read"] = 1e3 * (t1 - t0)
+                results.append(result)
+                visualizer.update(frame, result, system)
+                if progress is not None:
+                    progress(n + 1, len(frames), result)
         t2 = time.perf_counter()
         system.finish()  # the mapping thread's last keyframe (parallel mode)
         process_s += time.perf_counter() - t2

@@ -149,11 +149,14 @@ class CodeSLAM:
 
     config: the system's settings; depth_model: a :data:`DepthModelFactory` called once per keyframe; camera:
     the depth model's camera, to which every frame is resampled (the paper's intrinsics correction, Sec. 5.3);
-    None takes the first frame's camera.
+    None takes the first frame's camera. parallel: map on a thread of its own beside the tracking
+    (:mod:`codeslam.slam.mapping`); mapping_threads: that thread's torch threads (default half of
+    ``torch.get_num_threads()``, at least 1), the tracking thread keeps the rest while it processes a frame.
     """
 
     def __init__(self, config: SLAMConfig, depth_model: DepthModelFactory,
-                 camera: PinholeCamera | None = None, parallel: bool = False) -> None:
+                 camera: PinholeCamera | None = None, parallel: bool = False,
+                 mapping_threads: int | None = None) -> None:
         self.config = config
         self.depth_model = depth_model
         self.device = torch.device(config.device)
@@ -161,7 +164,14 @@ class CodeSLAM:
         self.camera = camera
         self.tracker = PhotometricTracker(config.tracker, config.window.sfm)
         self.sparse: SparseTracker | None = None  # made with the camera (first frame)
-        self.mapper = Mapper(config, parallel=parallel)  # the window; inline or on its own thread
+        # parallel: the mapping thread takes half of torch's threads, the tracking thread (the caller's) the rest
+        total = torch.get_num_threads()
+        if mapping_threads is None:
+            mapping_threads = max(1, total // 2)
+        if mapping_threads < 1:
+            raise CodeSLAMError(f"mapping_threads must be >= 1, got {mapping_threads}")
+        self._tracking_threads = max(1, total - mapping_threads) if parallel else None
+        self.mapper = Mapper(config, parallel=parallel, threads=mapping_threads if parallel else None)
         self.keyframes: list[MapKeyframe] = []  # every keyframe ever made, by id
         self.ref: MapKeyframe | None = None  # the keyframe frames are tracked against
         self.segment = 0
@@ -186,6 +196,25 @@ class CodeSLAM:
     def process(self, frame: Frame) -> FrameResult:
         """Track ``frame`` against the reference keyframe (relocalise it when that fails), maybe make it a
         keyframe, optimise the window and marginalise the oldest keyframe (paper Sec. 4.2-4.3)."""
+        with self.tracking_threads():
+            return self._process(frame)
+
+    @contextmanager
+    def tracking_threads(self) -> Iterator[None]:
+        """Parallel mode: the calling thread runs with the tracker's share of torch's threads inside the block
+        (and gets its own count back after it), so that what it does beside :meth:`process` (reading the next
+        frame, say) does not compete with the mapping thread for the cores either. A no-op when sequential."""
+        if self._tracking_threads is None:
+            yield
+            return
+        threads = torch.get_num_threads()
+        torch.set_num_threads(self._tracking_threads)
+        try:
+            yield
+        finally:
+            torch.set_num_threads(threads)
+
+    def _process(self, frame: Frame) -> FrameResult:
         timer = _StageTimer(self.device)
         self._check(frame)
         self._apply(self.mapper.collect())  # keyframes the mapping thread finished: track against the newest

@@ -57,3 +57,31 @@ def test_an_error_in_the_mapping_thread_reaches_the_caller():
     with pytest.raises(RuntimeError, match="decoder exploded"):
         _run(True, depth_model=failing)
     assert bool(torch.tensor(calls["n"] >= 2))
+
+
+def test_the_mapping_thread_and_the_tracker_split_torch_threads():
+    """The mapping thread runs with its own torch thread count (half by default), the tracker with the rest while
+    it processes a frame, and the caller's setting is back afterwards."""
+    seen = {}
+    factory = standin_depth_model()
+
+    def recording(frame):  # keyframes after the first are decoded on the mapping thread
+        import threading
+
+        seen.setdefault(threading.current_thread().name, set()).add(torch.get_num_threads())
+        return factory(frame)
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(4)
+    try:
+        seq = MemorySequence(preset_frames(21, 12, "walk", 10.0))
+        system = CodeSLAM(SLAMConfig(), recording, parallel=True, mapping_threads=1)
+        assert system._tracking_threads == 3
+        run_slam(seq, system, seq.frames[0].camera)
+        assert torch.get_num_threads() == 4  # the caller's count, restored after every frame
+    finally:
+        torch.set_num_threads(before)
+    assert seen.get("codeslam-mapping") == {1}, seen
+    assert seen.get("MainThread") == {3}, seen  # the first keyframe, decoded inline by the tracking thread
+    with pytest.raises(Exception, match="mapping_threads"):
+        CodeSLAM(SLAMConfig(), factory, parallel=True, mapping_threads=0)
