@@ -17,7 +17,8 @@ from codeslam.slam.config import KeyframeConfig
 @dataclass(frozen=True)
 class KeyframeDecision:
     """Whether to add a keyframe and why. reason: 'baseline', 'rotation', 'overlap', 'features' or '' (no keyframe), or
-    'tracking failed' / 'too soon' when a criterion held but the frame is not eligible."""
+    'tracking failed' / 'too soon' when a criterion held but the frame is not eligible. urgent: the keyframe is
+    leaving the view; starving: fewer of its keypoints matched than ``min_feature_inliers``."""
 
     add: bool
     reason: str
@@ -25,6 +26,7 @@ class KeyframeDecision:
     rotation_deg: float
     overlap: float
     urgent: bool = False
+    starving: bool = False
 
 
 def motion_since_keyframe(T_kf: torch.Tensor, median_depth: float) -> tuple[float, float]:
@@ -57,20 +59,21 @@ def decide_keyframe(
     # keyframe even right after the last one, and parallel mapping waits for it: measured on the HoloLens walk
     # at every second frame, the frame after a keyframe had turned 23 deg from it and the next one 25 deg more;
     # tracked against the old keyframe that frame had nothing left in view.
+    starving = feature_inliers is not None and feature_inliers < cfg.min_feature_inliers
     urgent = (ratio >= 2 * cfg.min_baseline_ratio or rot >= 2 * cfg.max_rotation_deg or overlap < cfg.urgent_overlap
-              or (feature_inliers is not None and feature_inliers < cfg.min_feature_inliers))
+              or starving)
     if ratio >= cfg.min_baseline_ratio:
         reason = "baseline"
     elif rot >= cfg.max_rotation_deg:
         reason = "rotation"
     elif overlap < cfg.min_overlap:
         reason = "overlap"
-    elif feature_inliers is not None and feature_inliers < cfg.min_feature_inliers:
+    elif starving:
         reason = "features"
     else:
         return KeyframeDecision(False, "", ratio, rot, overlap)
     if not tracking_ok:
-        return KeyframeDecision(False, "tracking failed", ratio, rot, overlap, urgent)
+        return KeyframeDecision(False, "tracking failed", ratio, rot, overlap, urgent, starving)
     if frames_since_keyframe < cfg.min_frames_between and not urgent:
-        return KeyframeDecision(False, "too soon", ratio, rot, overlap, urgent)
-    return KeyframeDecision(True, reason, ratio, rot, overlap, urgent)
+        return KeyframeDecision(False, "too soon", ratio, rot, overlap, urgent, starving)
+    return KeyframeDecision(True, reason, ratio, rot, overlap, urgent, starving)

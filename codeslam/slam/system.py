@@ -268,8 +268,8 @@ class CodeSLAM:
         decision = decide_keyframe(track.T_kf, ref.median_depth(), track.overlap, frames_since, True,
                                    self.config.keyframes, inliers)
         kcfg = self.config.keyframes
-        starving = inliers is not None and inliers < kcfg.min_feature_inliers
-        if decision.add and not starving and track.photometric_reason and track.overlap >= kcfg.urgent_overlap:
+        if (decision.add and not decision.starving and track.photometric_reason
+                and track.overlap >= kcfg.urgent_overlap):
             # A frame the photometric alignment could not explain makes a poor keyframe: wait for a better one.
             # Not when the matches are thinning out: the next frames would have nothing left to match.
             decision = dataclasses.replace(decision, add=False, reason="poor photometric fit")
