@@ -275,7 +275,7 @@ class CodeSLAM:
             decision = dataclasses.replace(decision, add=False, reason="poor photometric fit")
         if decision.add and self.mapper.busy:  # PTAM: the mapping thread is still on the last keyframe
             if decision.urgent:  # the reference is leaving the view: wait for the mapping thread rather than lose it
-                self._apply(self.mapper.wait())
+                self._apply(self.mapper.wait(interrupt=True))
                 if self.ref.id != ref.id:  # a newer keyframe arrived meanwhile: track against it next frame
                     decision = dataclasses.replace(decision, add=False, reason="keyframe arrived")
             else:
@@ -338,10 +338,10 @@ class CodeSLAM:
         T_wc = ref.T_wc @ rec.T_kf
         if res.keyframe is not None:
             res.keyframe = dataclasses.replace(res.keyframe, add=True, reason="next frame lost")
-        kid, segment = self._new_id(), self.segment
         self._apply(self.mapper.wait())  # parallel mode: the mapping thread's last keyframe first
         if self.ref is not ref:  # a newer keyframe arrived meanwhile: track against that one instead
             return True
+        kid, segment = self._new_id(), self.segment  # only now: an id taken and not used would shift every later one
         done = self.mapper.insert(MappingJob(lambda: self._make_keyframe(views, T_wc, kid, segment), ref, sparse,
                                              pos))
         self._apply([done] if done is not None else self.mapper.wait())
@@ -409,7 +409,7 @@ class CodeSLAM:
         with timer("decode"):
             kf = self._make_keyframe(views, T_wc, self._new_id(), self.segment)
         self.mapper.restart(kf)
-        self.keyframes.append(kf)
+        self._append(kf)
         self.ref = kf
         ok = status != PREDICTED
         return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), ok, timer, track=track,
@@ -427,7 +427,7 @@ class CodeSLAM:
                 res.timings_ms[k] = res.timings_ms.get(k, 0.0) + v
             if res.is_keyframe:  # the solve of a keyframe already handed over (parallel mode)
                 continue
-            self.keyframes.append(kf)
+            self._append(kf)
             rec = self._records[m.frame_position]
             rec.keyframe_id, rec.T_kf, rec.affine = kf.id, torch.eye(4, dtype=torch.float64), None
             self._keyframe_record[kf.id] = m.frame_position
@@ -457,6 +457,12 @@ class CodeSLAM:
         """Stop the mapping thread without taking in its work (after an error)."""
         self.mapper.close()
 
+    def _append(self, kf: MapKeyframe) -> None:
+        """Keyframe ids are their places in :attr:`keyframes` (frame records refer to them by id)."""
+        if kf.id != len(self.keyframes):
+            raise CodeSLAMError(f"internal error: keyframe {kf.id} would be stored at place {len(self.keyframes)}")
+        self.keyframes.append(kf)
+
     def _new_id(self) -> int:
         kid = self._next_id
         self._next_id += 1
@@ -468,7 +474,7 @@ class CodeSLAM:
         with timer("decode"):
             kf = self._make_keyframe(views, torch.eye(4, dtype=torch.float64), self._new_id(), self.segment)
         self.mapper.start(kf)
-        self.keyframes.append(kf)
+        self._append(kf)
         self.ref = kf
         return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), True, timer, reason="first frame",
                             status=INITIALISING)
