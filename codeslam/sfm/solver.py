@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import torch
@@ -120,7 +120,7 @@ def solve_damped(H: torch.Tensor, g: torch.Tensor, damping: float, min_diagonal:
 
 def levenberg_marquardt(
     problem, state: SfMState, layout: VariableLayout, cfg: SfMConfig, max_iterations: int,
-    profile: dict | None = None,
+    profile: dict | None = None, interrupted: Callable[[], bool] | None = None,
 ) -> tuple[SfMState, LMReport]:
     """Minimise ``problem``'s cost over ``layout``'s free blocks from ``state``.
 
@@ -129,8 +129,9 @@ def levenberg_marquardt(
     state is kept. Stops after ``max_iterations``, when an accepted step lowers the cost by less than
     ``relative_cost_tolerance`` or is shorter than ``step_tolerance``, when the quadratic model itself predicts
     less than that relative decrease (converged as far as the linearisation can tell; this also ends the run of
-    rejections that approximate image gradients cause near the optimum), or when the damping exceeds
-    ``max_damping``.
+    rejections that approximate image gradients cause near the optimum), when the damping exceeds
+    ``max_damping``, or when ``interrupted()`` turns true before an iteration (reason 'interrupted'; the state is
+    the last accepted one, as after any stop).
     """
     report = LMReport(damping=cfg.initial_damping)
     device = state.poses.device
@@ -146,6 +147,9 @@ def levenberg_marquardt(
     H = g = None
     report.reason = "max iterations"
     for _ in range(max_iterations):
+        if interrupted is not None and interrupted():
+            report.reason = "interrupted"
+            break
         _sync(device)
         t0 = time.perf_counter()
         if H is None:

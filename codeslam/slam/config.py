@@ -251,6 +251,10 @@ class WindowConfig:
     scale errs by tens of percent from view to view and the window rightly reconciles it (at 0.4, a factor 1.5,
     solves on the generator's walk were rejected for that and its ATE was 2.4 times higher); what this catches is
     a depth running away."""
+    interruptible: bool = True
+    """Parallel mapping: a keyframe the tracker needs at once (the last one is leaving the view) stops the running
+    window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops
+    its bundle adjustment for a new keyframe; the next solve goes on from there."""
 
     def __post_init__(self) -> None:
         if self.size < 2:

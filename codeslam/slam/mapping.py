@@ -79,6 +79,7 @@ class Mapper:
         self._jobs: queue.Queue[MappingJob | None] = queue.Queue()
         self._done: queue.Queue[MappingResult | BaseException] = queue.Queue()
         self._busy = threading.Event()
+        self._stop_solve = threading.Event()  # set by the tracker that needs the thread: end the solve early
         self._thread: threading.Thread | None = None
         self.updates = 0  # window solves finished
 
@@ -112,10 +113,14 @@ class Mapper:
                 raise item
             out.append(item)
 
-    def wait(self) -> list[MappingResult]:
-        """Block until the mapping thread is idle; returns what it finished (see :meth:`collect`)."""
+    def wait(self, interrupt: bool = False) -> list[MappingResult]:
+        """Block until the mapping thread is idle; returns what it finished (see :meth:`collect`). With
+        ``interrupt`` (and ``window.interruptible``) a running window solve ends after its current iteration."""
         if self._thread is not None:
+            if interrupt and self.config.window.interruptible:
+                self._stop_solve.set()
             self._jobs.join()
+            self._stop_solve.clear()
         return self.collect()
 
     def close(self) -> None:
@@ -166,7 +171,7 @@ class Mapper:
         before = self.window.snapshot()
         depth_before = {k.id: k.median_depth() for k in self.window.keyframes}
         t3 = time.perf_counter()
-        report = self.window.optimise()  # all codes and poses, photometric + geometric + matched keypoints
+        report = self.window.optimise(self._stop_solve.is_set)  # codes and poses: photometric + geometric + keypoints
         if self.config.window.rollback:
             report.rejected = self.window.check(before, depth_before)
             if report.rejected:

@@ -193,8 +193,8 @@ def failures_by_reason(results: list[FrameResult]) -> dict[str, int]:
 #: Columns of the per-frame log ``frames.csv``.
 FRAME_LOG_COLUMNS = ("frame", "timestamp", "status", "reason", "is_keyframe", "keyframe_reason", "ref_keyframe",
                      "segment", "source", "overlap", "inlier_ratio", "explained", "feature_inliers",
-                     "feature_matches", "residual", "iterations", "window_ms", "window_rejected", "rolled_back",
-                     "track_ms", "total_ms")
+                     "feature_matches", "residual", "iterations", "window_ms", "window_iterations",
+                     "window_interrupted", "window_rejected", "rolled_back", "track_ms", "total_ms")
 
 
 def frame_log_rows(results: list[FrameResult]) -> list[dict]:
@@ -212,6 +212,7 @@ def frame_log_rows(results: list[FrameResult]) -> list[dict]:
             "explained": _fmt(t.explained if t else nan), "feature_inliers": t.feature_inliers if t else 0,
             "feature_matches": t.feature_matches if t else 0, "residual": _fmt(t.residual if t else nan),
             "iterations": t.iterations if t else 0, "window_ms": _fmt(w.ms if w else nan, 1),
+            "window_iterations": w.iterations if w else "", "window_interrupted": int(w.interrupted) if w else "",
             "window_rejected": w.rejected if w else "", "rolled_back": r.rolled_back,
             "track_ms": _fmt(r.timings_ms.get("track", 0.0), 2), "total_ms": _fmt(sum(r.timings_ms.values()), 2),
         })

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -113,12 +114,14 @@ class MapKeyframe:
 @dataclass
 class WindowReport:
     """What one window optimisation did. pairs: (A, B) keyframe ids with residuals; levels: (level, LM report)
-    coarse to fine; ms: wall time; rejected: why the solve was rolled back ('' when kept)."""
+    coarse to fine; ms: wall time; rejected: why the solve was rolled back ('' when kept); interrupted: the solve
+    stopped early because the tracker needed the mapping thread (its values are the last accepted step's)."""
 
     pairs: list[tuple[int, int]] = field(default_factory=list)
     levels: list[tuple[int, LMReport]] = field(default_factory=list)
     ms: float = 0.0
     rejected: str = ""
+    interrupted: bool = False
 
     @property
     def iterations(self) -> int:
@@ -290,9 +293,11 @@ class SlidingWindow:
         return [BlockId(POSE, 0)] if self.prior is None else []
 
     # ---- optimisation ---------------------------------------------------------------------------------------
-    def optimise(self) -> WindowReport:
+    def optimise(self, interrupted: Callable[[], bool] | None = None) -> WindowReport:
         """Jointly optimise the codes and poses of the window's keyframes (paper Sec. 4.1/4.3), coarse to fine,
-        from their current values; writes the results back into the keyframes."""
+        from their current values; writes the results back into the keyframes. ``interrupted()`` is asked before
+        every iteration: when it turns true the solve ends there, keeping what it has reached (as ORB-SLAM's
+        local mapping stops its bundle adjustment when a new keyframe arrives)."""
         report = WindowReport()
         if len(self.keyframes) < 2:
             return report
@@ -316,8 +321,11 @@ class SlidingWindow:
             if self.cfg.depth_scale_sigma > 0:  # each keyframe's scale near the network's prediction
                 terms.append(DepthScalePrior(levels[lvl], list(range(F_)), self.cfg.depth_scale_sigma))
             problem = PairProblem(levels[lvl], pairs, cfg, terms)
-            state, rep = levenberg_marquardt(problem, state, layout, cfg, iters)
+            state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, interrupted=interrupted)
             report.levels.append((lvl, rep))
+            if rep.reason == "interrupted":
+                report.interrupted = True
+                break
         for i, kf in enumerate(self.keyframes):
             kf.T_wc = project_to_se3(state.poses[i])
             kf.code = state.codes[i].detach().clone()

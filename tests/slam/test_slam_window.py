@@ -170,3 +170,28 @@ def test_window_uses_consecutive_and_overlapping_pairs_in_both_directions():
     for a, b in [(0, 1), (1, 0), (1, 2), (2, 1), (2, 3), (3, 2)]:
         assert (a, b) in pairs
     assert all(a != b for a, b in pairs) and len(set(pairs)) == len(pairs)
+
+
+def test_an_interrupted_solve_stops_after_the_iteration_it_was_in_and_keeps_its_values():
+    """Parallel mapping stops a window solve when the tracker needs a keyframe at once: the solve ends before the
+    next iteration, the report says so, and the keyframes hold the last accepted values (which lower the cost)."""
+    frames = synth_frames(3, 16, 10.0)[::5]
+    G0 = se3_inverse(frames[0].pose)
+    truth = [G0 @ f.pose for f in frames]
+    start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
+    cfg = small_config(size=4)
+    full = _window(frames, cfg, start).optimise()
+    assert not full.interrupted and full.iterations > 3
+    calls = {"n": 0}
+
+    def after_three():
+        calls["n"] += 1
+        return calls["n"] > 3
+
+    w = _window(frames, cfg, start)
+    rep = w.optimise(after_three)
+    assert rep.interrupted and rep.iterations == 3 and rep.levels[-1][1].reason == "interrupted"
+    lm = rep.levels[0][1]
+    assert lm.accepted >= 1 and lm.costs[-1] < lm.costs[0]  # the iterations it made lowered the cost...
+    assert any(_pose_err(k.T_wc, T0)[0] > 1e-6 for k, T0 in zip(w.keyframes[1:], start[1:]))  # ...and are kept
+    assert _window(frames, cfg, start).optimise(lambda: True).iterations == 0
