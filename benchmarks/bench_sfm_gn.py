@@ -92,6 +92,9 @@ def main() -> None:
     ap.add_argument("--skip-autograd", action="store_true")
     ap.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch's default)")
     args = ap.parse_args()
+    if args.repeats < 1 or args.autograd_repeats < 0:
+        ap.error("--repeats must be >= 1 and --autograd-repeats >= 0 (0 skips autograd, as --skip-autograd)")
+    args.skip_autograd = args.skip_autograd or args.autograd_repeats == 0
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     device = torch.device(args.device)
