@@ -154,13 +154,14 @@ def assemble(
                 if sj is not None:
                     _add(H, sA, sj, H_Aloc[:, j0:j1], True)
         if do_B and sB is not None:
-            JB = terms.JB_w[p]  # (C, N), J_B[v]^T
+            JB, k = terms.JB_w[p], terms.JB_idx[p]  # (C, M), J_B[v]^T at the M pixels with geometric weight
+            wk, sBk = wg[p, k], sB_g[p, k]
             with _timed(profile, "gemm", dev):
-                H[sB, sB] += (JB * (wg[p] * sB_g[p] * sB_g[p])) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
-                H_Bd = JB @ ((wg[p] * sB_g[p]).unsqueeze(-1) * Jd[p, tg])  # (C, L)
-                if sA is not None:
-                    _add(H, sA, sB, (G[a] * (wg[p] * sA_g[p] * sB_g[p])) @ JB.T, True)  # J_A^T diag(.) J_B[v]
-            g[sB] += JB @ (wg[p] * sB_g[p] * rg[p])
+                H[sB, sB] += (JB * (wk * sBk * sBk)) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
+                H_Bd = JB @ ((wk * sBk).unsqueeze(-1) * Jd[p, tg, k])  # (C, L)
+                if sA is not None:  # J_A^T diag(w s_A s_B) J_B[v]
+                    _add(H, sA, sB, (G[a][:, k] * (wk * sA_g[p, k] * sBk)) @ JB.T, True)
+            g[sB] += JB @ (wk * sBk * rg[p, k])
             H_Bloc = H_Bd @ Q[p]  # (C, L + 6)
             for (j0, j1), sj in zip(loc, sls):
                 if sj is not None:
@@ -188,5 +189,6 @@ def dense_jacobian(terms: PairTerms, pairs: torch.Tensor, poses: torch.Tensor, l
         if sA is not None:
             J[p, :, :, sA] += terms.s_A[p].unsqueeze(-1) * G[a]
         if sB is not None and terms.JB_w is not None:
-            J[p, :, :, sB] += terms.s_B[p].unsqueeze(-1) * terms.JB_w[p].T
+            k = terms.JB_idx[p]  # the geometric residual's rows with weight (its others are zero)
+            J[p, :, k, sB] += terms.s_B[p][:, k].unsqueeze(-1) * terms.JB_w[p].T
     return J.reshape(P * T * N, layout.dim)

@@ -100,8 +100,11 @@ class PairTerms:
     r, w: (P, T, N) residuals and IRLS weights (``fixed * huber / sigma^2``, 0 where masked); cost: (P,) robust
     cost of each pair. J_rel (P, T, N, 6): d r / d xi_BA (left perturbation of T_BA). J_aff (P, T, N, 2):
     d r / d (a, b). s_A (P, T, N): d r / d c_A = s_A J_A[u]. s_B (P, T, N): d r / d c_B = s_B JB_w^T.
-    JB_w: per pair a (C, N) view of J_B sampled at v (None without geometric residuals or when no code of B is
-    free). J_rs (P, T, N, 6): d r / d (omega_A, omega_B), the readout rotations (None without that model).
+    JB_w: per pair a (C, M_p) J_B sampled at v at the pixels ``JB_idx[p]`` (M_p,) where the geometric residual has
+    weight (elsewhere its code-B row is zero: masked or zero-weight pixels, a third of them in a SLAM window, cost
+    nothing in the C x N x C products of :func:`~codeslam.sfm.normal_equations.assemble`); both None without
+    geometric residuals or when no code of B is free. J_rs (P, T, N, 6): d r / d (omega_A, omega_B), the readout
+    rotations (None without that model).
     """
 
     types: tuple[str, ...]
@@ -114,6 +117,7 @@ class PairTerms:
     s_B: torch.Tensor
     JB_w: list[torch.Tensor] | None
     J_rs: torch.Tensor | None = None
+    JB_idx: list[torch.Tensor] | None = None
 
 
 def interpolant_gradient(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
@@ -135,17 +139,16 @@ def interpolant_gradient(img: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
     return torch.stack([gu, gv], dim=2)
 
 
-def sample_by_frame(img: torch.Tensor, frame_of: list[int], uv: torch.Tensor) -> list[torch.Tensor]:
+def sample_by_frame(img: torch.Tensor, frame_of: list[int], uv: list[torch.Tensor]) -> list[torch.Tensor]:
     """Bilinear lookup of many-channel frame images without copying them per pair: img (F, C, H, W), frame_of
-    (P,) frame index of each pair, uv (P, N, 2) -> P views (C, N). One lookup per frame over all its pairs'
-    points (indexing ``img[frame_of]`` first would copy a (C, H, W) image per pair)."""
+    (P,) frame index of each pair, uv P point sets (N_p, 2) -> P views (C, N_p). One lookup per frame over all
+    its pairs' points (indexing ``img[frame_of]`` first would copy a (C, H, W) image per pair)."""
     out: list[torch.Tensor | None] = [None] * len(frame_of)
     for f in sorted(set(frame_of)):
         ps = [p for p, fp in enumerate(frame_of) if fp == f]
-        vals, _ = bilinear_sample(img[f:f + 1], uv[ps].reshape(1, -1, 2))  # (1, C, len(ps) N)
-        vals = vals.reshape(img.shape[1], len(ps), uv.shape[1])  # (C, len(ps), N)
-        for k, p in enumerate(ps):
-            out[p] = vals[:, k]  # (C, N) view
+        vals, _ = bilinear_sample(img[f:f + 1], torch.cat([uv[p] for p in ps])[None])  # (1, C, sum N_p)
+        for p, part in zip(ps, vals[0].split([uv[p].shape[0] for p in ps], dim=1), strict=True):
+            out[p] = part  # (C, N_p) view
     return out
 
 
@@ -368,9 +371,12 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
         s_A.append((dr_dx * dx_dd).sum(-1) * ev.dd_dprox_A)  # Eq. 9 with dD_A/dc_A = dD/dP J_A[u]
     valid = ev.valid
     zero = torch.zeros((), dtype=dtype, device=ev.r.device)
-    JB_w = None
-    if GEOMETRIC in ev.types and with_code_b:
-        JB_w = sample_by_frame(level.jac, pairs[:, 1].tolist(), ev.v)  # J_B[v], P x (C, N)
+    JB_w = JB_idx = None
+    if GEOMETRIC in ev.types and with_code_b:  # J_B[v] where the geometric residual has weight
+        tg = ev.types.index(GEOMETRIC)
+        JB_idx = list((valid[:, tg] & (w[:, tg] != 0)).unbind(0))
+        JB_idx = [k.nonzero().squeeze(-1) for k in JB_idx]  # P x (M_p,)
+        JB_w = sample_by_frame(level.jac, pairs[:, 1].tolist(), [ev.v[p, k] for p, k in enumerate(JB_idx)])
     return PairTerms(
         types=ev.types,
         r=ev.r,
@@ -382,4 +388,5 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
         s_B=torch.where(valid, torch.stack(s_B, dim=1), zero),
         JB_w=JB_w,
         J_rs=torch.where(valid[..., None], torch.stack(J_rs, dim=1), zero) if J_rs else None,
+        JB_idx=JB_idx,
     )
