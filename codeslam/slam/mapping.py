@@ -79,6 +79,8 @@ class Mapper:
         self._jobs: queue.Queue[MappingJob | None] = queue.Queue()
         self._done: queue.Queue[MappingResult | BaseException] = queue.Queue()
         self._busy = threading.Event()
+        self._decoded = threading.Event()  # the keyframe of the running job is handed over (its solve may run)
+        self._decoded.set()
         self._stop_solve = threading.Event()  # set by the tracker that needs the thread: end the solve early
         self._thread: threading.Thread | None = None
         self.updates = 0  # window solves finished
@@ -98,6 +100,7 @@ class Mapper:
             self._thread = threading.Thread(target=self._loop, name="codeslam-mapping", daemon=True)
             self._thread.start()
         self._busy.set()
+        self._decoded.clear()
         self._jobs.put(job)
         return None
 
@@ -115,8 +118,14 @@ class Mapper:
 
     def wait(self, interrupt: bool = False) -> list[MappingResult]:
         """Block until the mapping thread is idle; returns what it finished (see :meth:`collect`). With
-        ``interrupt`` (and ``window.interruptible``) a running window solve ends after its current iteration."""
+        ``interrupt`` (and ``window.interruptible``) a running window solve ends after its current iteration;
+        while the keyframe asked for last is still being decoded, only that is waited for instead (the tracker
+        needs the keyframe, not the end of its solve: stopping the solve before it starts left most keyframes of
+        a parallel HoloLens run unoptimised, 54 of 60 solves interrupted)."""
         if self._thread is not None:
+            if interrupt and not self._decoded.is_set():
+                self._decoded.wait()
+                return self.collect()
             if interrupt and self.config.window.interruptible:
                 self._stop_solve.set()
             self._jobs.join()
@@ -145,6 +154,7 @@ class Mapper:
             except BaseException as e:  # handed to the tracking thread, which re-raises it
                 self._done.put(e)
             finally:
+                self._decoded.set()  # also when the step failed before handing the keyframe over
                 self._busy.clear()
                 self._jobs.task_done()
 
@@ -161,6 +171,7 @@ class Mapper:
         ms["decode"] = 1e3 * (t1 - t0)
         if self.parallel:  # the tracker may switch to the keyframe now, before the window solve
             self._done.put(MappingResult(kf, None, None, job.frame_position, None, {"decode": ms["decode"]}))
+            self._decoded.set()
         marginalised = None
         if self.window.is_full:  # the oldest keyframe becomes a linear prior on the others
             marginalised = self.window.remove_oldest().id
