@@ -125,11 +125,11 @@ class Mapper:
         if self._thread is not None:
             if interrupt and not self._decoded.is_set():
                 self._decoded.wait()
-                return self.collect()
-            if interrupt and self.config.window.interruptible:
-                self._stop_solve.set()
-            self._jobs.join()
-            self._stop_solve.clear()
+            else:
+                if interrupt and self.config.window.interruptible:
+                    self._stop_solve.set()
+                self._jobs.join()
+                self._stop_solve.clear()
         return self.collect()
 
     def close(self) -> None:
