@@ -7,6 +7,10 @@ autograd baseline differentiates the same residual function with forward-mode au
 of the J^T W J products alone (measured inside the same iterations) as a share of the iteration.
 
     python benchmarks/bench_sfm_gn.py [--repeats 5] [--device cpu] [--dtype float32] [--chunk 64] [--threads N]
+                                      [--geometric-stride S]
+
+With ``--geometric-stride S`` the analytic iteration is also timed with the geometric residuals on every S-th
+pixel (``SfMConfig.geometric_stride``), and its time printed beside the full one with their ratio.
 
 Prints a table; asserts nothing about time.
 """
@@ -16,6 +20,7 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from dataclasses import replace
 
 import torch
 
@@ -91,9 +96,13 @@ def main() -> None:
     ap.add_argument("--codes", type=int, nargs="+", default=[32, 128])
     ap.add_argument("--skip-autograd", action="store_true")
     ap.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch's default)")
+    ap.add_argument("--geometric-stride", type=int, default=1,
+                    help="also time the analytic iteration with this SfMConfig.geometric_stride (1: not)")
     args = ap.parse_args()
     if args.repeats < 1 or args.autograd_repeats < 0:
         ap.error("--repeats must be >= 1 and --autograd-repeats >= 0 (0 skips autograd, as --skip-autograd)")
+    if args.geometric_stride < 1:
+        ap.error("--geometric-stride must be >= 1")
     args.skip_autograd = args.skip_autograd or args.autograd_repeats == 0
     if args.threads > 0:
         torch.set_num_threads(args.threads)
@@ -105,6 +114,9 @@ def main() -> None:
           f"torch={torch.__version__}")
     header = (f"{'frames':>6} {'pairs':>5} {'code':>4} {'vars':>5} {'analytic ms':>11} {'GEMM %':>6} "
               f"{'autograd ms':>11} {'GEMM %':>6} {'ratio':>7}")
+    strided = args.geometric_stride > 1
+    if strided:
+        header += f" {f'stride {args.geometric_stride} ms':>12} {'ratio':>6}"
     print(header)
     print("-" * len(header))
     for F_ in args.frames:
@@ -123,6 +135,11 @@ def main() -> None:
                 H, g = problem.linearize(state, ev, layout, prof)
                 return solve_damped(H, g, cfg.initial_damping, cfg.min_diagonal)
 
+            sparse_problem = PairProblem(level, pairs, replace(cfg, geometric_stride=args.geometric_stride))
+
+            def analytic_strided(prof, problem=sparse_problem, state=state, layout=layout):
+                return analytic(prof, problem, state, layout)
+
             def autograd(prof, problem=problem, state=state, layout=layout, level=level, pairs=pairs):
                 problem.evaluate(state)  # the cost, as an LM iteration needs it
                 H, g = autodiff_normal_equations(level, pairs, state, layout, cfg, prof, args.chunk)
@@ -134,8 +151,12 @@ def main() -> None:
             else:
                 t_ad, share_ad = time_iteration(autograd, device, args.autograd_repeats)
                 ratio = t_ad / t_an
-            print(f"{F_:>6} {pairs.shape[0]:>5} {C:>4} {layout.dim:>5} {1e3 * t_an:>11.1f} {100 * share_an:>6.1f} "
-                  f"{1e3 * t_ad:>11.1f} {100 * share_ad:>6.1f} {ratio:>7.1f}")
+            row = (f"{F_:>6} {pairs.shape[0]:>5} {C:>4} {layout.dim:>5} {1e3 * t_an:>11.1f} {100 * share_an:>6.1f} "
+                   f"{1e3 * t_ad:>11.1f} {100 * share_ad:>6.1f} {ratio:>7.1f}")
+            if strided:
+                t_st, _ = time_iteration(analytic_strided, device, args.repeats)
+                row += f" {1e3 * t_st:>12.1f} {t_an / t_st:>6.2f}"
+            print(row)
 
 
 if __name__ == "__main__":

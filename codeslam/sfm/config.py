@@ -36,6 +36,11 @@ class SfMConfig:
     """Geometric noise in the units of ``geometric_space``: 0.08 in log depth (8% relative depth error) is what
     0.02 in proximity is at the average depth (set 0.02 with ``geometric_space: proximity``); relative weighting
     (ii)."""
+    geometric_stride: int = 1
+    """Geometric residuals on every s-th pixel of every s-th row of the finest level only (level l: s >> l, at
+    least 1), each weighted s^2 so the term keeps its weight. The decoded depths are smooth, so the term's
+    information is of low frequency, while its code-B coupling costs C x C per pixel (the bulk of a window
+    linearisation when the codes are free); the photometric residuals keep every pixel."""
     use_uncertainty: bool = False
     """Add the network's Laplace scales b of both views to the geometric noise: sigma^2 + 2 b_A^2 + 2 b_B^2 (b
     carried into log depth at first order when ``geometric_space`` is 'log_depth')."""
@@ -112,6 +117,8 @@ class SfMConfig:
                 raise ConfigError(f"SfM config: {name} must be positive, got {getattr(self, name)}")
         if not 0 < self.damping_decrease < 1 < self.damping_increase:
             raise ConfigError("SfM config: need 0 < damping_decrease < 1 < damping_increase")
+        if not (isinstance(self.geometric_stride, int) and self.geometric_stride >= 1):
+            raise ConfigError(f"SfM config: geometric_stride must be an integer >= 1, got {self.geometric_stride}")
         if self.geometric_space not in GEOMETRIC_SPACES:
             raise ConfigError(f"SfM config: geometric_space must be one of {GEOMETRIC_SPACES}, "
                               f"got {self.geometric_space!r}")

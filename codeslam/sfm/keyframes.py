@@ -69,6 +69,7 @@ class LevelData:
         uv: (N, 2) pixel coordinates, row-major (pixel n = (n % W, n // W)).
         gray_valid: (F, 1, H, W) 1 where the grey value comes from real pixels only, 0 elsewhere; None when
             every keyframe's image is valid everywhere.
+        level: the pyramid level (0 = finest).
     """
 
     gray: torch.Tensor
@@ -80,6 +81,7 @@ class LevelData:
     avg_depth: torch.Tensor
     uv: torch.Tensor
     gray_valid: torch.Tensor | None = None
+    level: int = 0
 
     @property
     def height(self) -> int:
@@ -158,6 +160,7 @@ def build_levels(
                                    dtype=dtype, device=device),
             uv=pixel_grid(H, W, dtype, device).reshape(-1, 2),
             gray_valid=None if valid_pyr is None else real_pixels(valid_pyr[lvl]),
+            level=lvl,
         )
     return out
 

@@ -298,8 +298,14 @@ def evaluate_pairs(
             occ_w = w_slant
             if cfg.occlusion_geometric:
                 occ_w = w_slant * torch.where(occluded.detach(), cfg.occlusion_weight * ones, ones)
+            valid_geo = valid & prox_B_ok  # no lookup mixing B's proximity with holes (loss (i))
+            stride = max(1, cfg.geometric_stride >> level.level)
+            if stride > 1:  # a grid of every stride-th pixel, each standing for stride^2 (SfMConfig)
+                n = torch.arange(H * W, device=prox.device)
+                valid_geo = valid_geo & ((n // W) % stride == 0) & ((n % W) % stride == 0)
+                occ_w = occ_w * float(stride * stride)
             fixed.append(occ_w)
-            valids.append(valid & prox_B_ok)  # no lookup mixing B's proximity with holes (loss (i))
+            valids.append(valid_geo)
             hubers.append(cfg.huber_geometric)
         rs.append(r)
     valid_t = torch.stack(valids, dim=1)  # (P, T, N)

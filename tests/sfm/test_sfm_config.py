@@ -23,7 +23,7 @@ def test_round_trip_through_a_dict():
     dict(photometric=False, geometric=False), dict(sigma_photometric=0.0), dict(gradient_mode="central"),
     dict(pyramid_levels=(2, 1, 0), max_iterations=(5,)), dict(damping_decrease=2.0), dict(pyramid_levels=(-1,),
                                                                                          max_iterations=(1,)),
-    dict(affine_prior_sigma=(0.1, 0.0)), dict(border=-1.0),
+    dict(affine_prior_sigma=(0.1, 0.0)), dict(border=-1.0), dict(geometric_stride=0), dict(geometric_stride=1.5),
 ])
 def test_nonsense_is_refused(bad):
     with pytest.raises(ConfigError):

@@ -367,3 +367,20 @@ def test_level_validity_covers_the_pyramid_footprint():
         assert not v[-1].any() and v[0].all()
     with pytest.raises(Exception, match="validity mask"):
         type(kfs[0])(kfs[0].image, kfs[0].camera, kfs[0].decoder, torch.ones(47, 64, dtype=torch.bool))
+
+
+def test_geometric_stride_keeps_a_grid_of_the_finest_level_weighted_by_its_area(problem):
+    level, state = problem  # 32x24, level 0
+    base = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, SfMConfig())
+    ev = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, SfMConfig(geometric_stride=2))
+    n = torch.arange(level.height * level.width)
+    grid = ((n // level.width) % 2 == 0) & ((n % level.width) % 2 == 0)
+    assert torch.equal(ev.valid[:, 1], base.valid[:, 1] & grid)  # geometric: the grid only
+    assert int(ev.valid[:, 1].sum()) > 0
+    torch.testing.assert_close(ev.fixed_weight[:, 1], 4.0 * base.fixed_weight[:, 1])
+    assert torch.equal(ev.valid[:, 0], base.valid[:, 0])  # photometric: every pixel, as before
+    torch.testing.assert_close(ev.fixed_weight[:, 0], base.fixed_weight[:, 0])
+    coarse = type(level)(**{**level.__dict__, "level": 1})  # level 1: stride 2 >> 1 = 1, every pixel
+    ev1 = evaluate_pairs(coarse, PAIRS, state.poses, state.codes, state.affine, SfMConfig(geometric_stride=2))
+    assert torch.equal(ev1.valid, base.valid)
+    torch.testing.assert_close(ev1.fixed_weight, base.fixed_weight)
