@@ -192,8 +192,8 @@ def failures_by_reason(results: list[FrameResult]) -> dict[str, int]:
 
 #: Columns of the per-frame log ``frames.csv``.
 FRAME_LOG_COLUMNS = ("frame", "timestamp", "status", "reason", "is_keyframe", "keyframe_reason", "ref_keyframe",
-                     "segment", "source", "overlap", "inlier_ratio", "explained", "feature_inliers",
-                     "feature_matches", "residual", "iterations", "window_ms", "window_iterations",
+                     "segment", "source", "photometric_reason", "overlap", "inlier_ratio", "explained",
+                     "feature_inliers", "feature_matches", "residual", "iterations", "window_ms", "window_iterations",
                      "window_interrupted", "window_rejected", "rolled_back", "track_ms", "total_ms")
 
 
@@ -208,6 +208,7 @@ def frame_log_rows(results: list[FrameResult]) -> list[dict]:
             "reason": "" if r.is_keyframe else r.reason, "is_keyframe": int(r.is_keyframe),
             "keyframe_reason": r.reason if r.is_keyframe else "", "ref_keyframe": r.keyframe_id,
             "segment": r.segment, "source": r.source,
+            "photometric_reason": t.photometric_reason if t and r.tracking_ok else "",  # why 'features' alone
             "overlap": _fmt(t.overlap if t else nan), "inlier_ratio": _fmt(t.inlier_ratio if t else nan),
             "explained": _fmt(t.explained if t else nan), "feature_inliers": t.feature_inliers if t else 0,
             "feature_matches": t.feature_matches if t else 0, "residual": _fmt(t.residual if t else nan),

@@ -140,3 +140,21 @@ def test_relocalisation_finds_the_keyframe_that_sees_the_frame():
     # A frame of another room matches none of them.
     other = synth_frames(8, 1, 10.0, 128, 96)[0]
     assert tracker.relocalise(cands, feats(other), min_inliers=30) is None
+
+
+def test_the_frame_log_says_why_a_pose_rests_on_the_features_alone():
+    from codeslam.slam.pipeline import frame_log_rows
+    from codeslam.slam.system import FrameResult
+    from codeslam.slam.tracker import TrackResult
+
+    def result(i, ok, source, photometric_reason, reason=""):
+        track = TrackResult(torch.eye(4, dtype=torch.float64), torch.zeros(2), ok, reason, 0.8, 0.9, 0.4, 1.0, 5,
+                            120, 90, photometric_reason)
+        return FrameResult(i, float(i), torch.eye(4, dtype=torch.float64), ok, "tracked" if ok else "predicted", 0,
+                           False, reason, source=source, track=track)
+
+    rows = frame_log_rows([result(1, True, "direct+features", ""),
+                           result(2, True, "features", "explained variance 0.40 < 0.5"),
+                           result(3, False, "motion model", "overlap 0.10 < 0.3", "overlap 0.10 < 0.3")])
+    assert [r["photometric_reason"] for r in rows] == ["", "explained variance 0.40 < 0.5", ""]
+    assert rows[2]["reason"] == "overlap 0.10 < 0.3"  # a lost frame's reason stays in its own column
