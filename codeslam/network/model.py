@@ -199,12 +199,17 @@ class DepthDecoder(nn.Module):
         if not self.linear:
             raise ValueError("code_directions needs the linear decoder (the nonlinear one's Jacobian varies)")
         B, m = feats[0].shape[0], basis.shape[0]
+        # Channels-last: the batch of m directions with few channels each is what oneDNN's convolutions run
+        # fastest in that layout (measured at 96x128, code 128: 241 -> 120 ms with 2 threads).
+        cl = torch.channels_last
 
         def layer(conv: nn.Conv2d, dy: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
             K, w = dy.shape[1], conv.weight  # w: (out, 3K, 3, 3) over [y, f, y * f]
             dyf = (dy.view(B, m, *dy.shape[1:]) * f[:, None]).flatten(0, 1)  # (B m, K, h, w): f of each image
-            return (F.conv2d(dy, w[:, :K], None, conv.stride, conv.padding)
-                    + F.conv2d(dyf, w[:, 2 * K :], None, conv.stride, conv.padding))
+            return (F.conv2d(dy.contiguous(memory_format=cl), w[:, :K].contiguous(memory_format=cl), None,
+                             conv.stride, conv.padding)
+                    + F.conv2d(dyf.contiguous(memory_format=cl), w[:, 2 * K :].contiguous(memory_format=cl), None,
+                               conv.stride, conv.padding))
 
         dy = (basis.to(self.fc.weight) @ self.fc.weight.T).view(1, m, -1, self.h16, self.w16)
         dy = dy.expand(B, -1, -1, -1, -1).flatten(0, 1)  # (B m, w_3, H/16, W/16), image-major like the result
@@ -216,9 +221,10 @@ class DepthDecoder(nn.Module):
             if s < NUM_LEVELS:
                 head = self.heads[s]
                 out[s] = F.conv2d(dy, head.weight, None, head.stride, head.padding)
-        dy = F.conv_transpose2d(dy, self.deconv.weight, None, self.deconv.stride, self.deconv.padding)
+        dy = F.conv_transpose2d(dy.contiguous(memory_format=cl), self.deconv.weight, None, self.deconv.stride,
+                                self.deconv.padding)
         out[0] = layer(self.heads[0], dy, feats[0])
-        return [o.view(B, m, *o.shape[-2:]) for o in out]
+        return [o.reshape(B, m, *o.shape[-2:]) for o in out]
 
 
 class CodeNetwork(nn.Module):
