@@ -144,6 +144,20 @@ class _StageTimer:
         self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
 
 
+@contextmanager
+def _torch_threads(n: int | None) -> Iterator[None]:
+    """torch's intra-op threads of the calling thread set to ``n`` inside the block (None: unchanged)."""
+    if n is None:
+        yield
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
 class CodeSLAM:
     """Dense monocular SLAM with learned depth codes (paper Sec. 4).
 
@@ -152,11 +166,15 @@ class CodeSLAM:
     None takes the first frame's camera. parallel: map on a thread of its own beside the tracking
     (:mod:`codeslam.slam.mapping`); mapping_threads: that thread's torch threads (default half of
     ``torch.get_num_threads()``, at least 1), the tracking thread keeps the rest while it processes a frame.
+    alignment_threads: torch threads of the photometric alignment of each frame (at most the caller's; None: the
+    caller's). Its problem, a few thousand pixels and 8 unknowns, gains little from OpenMP's threads, which spin
+    between its small kernels against OpenCV's and the mapping's work (TUM fr1/rpy, sequential, 2 threads: track
+    stage median 68 -> 30 ms with 1, 3.09 -> 3.36 frames/s).
     """
 
     def __init__(self, config: SLAMConfig, depth_model: DepthModelFactory,
                  camera: PinholeCamera | None = None, parallel: bool = False,
-                 mapping_threads: int | None = None) -> None:
+                 mapping_threads: int | None = None, alignment_threads: int | None = 1) -> None:
         self.config = config
         self.depth_model = depth_model
         self.device = torch.device(config.device)
@@ -171,6 +189,9 @@ class CodeSLAM:
         if mapping_threads < 1:
             raise CodeSLAMError(f"mapping_threads must be >= 1, got {mapping_threads}")
         self._tracking_threads = max(1, total - mapping_threads) if parallel else None
+        if alignment_threads is not None and alignment_threads < 1:
+            raise CodeSLAMError(f"alignment_threads must be >= 1, got {alignment_threads}")
+        self._alignment_threads = alignment_threads
         self.mapper = Mapper(config, parallel=parallel, threads=mapping_threads if parallel else None)
         self.keyframes: list[MapKeyframe] = []  # every keyframe ever made, by id
         self.ref: MapKeyframe | None = None  # the keyframe frames are tracked against
@@ -204,15 +225,8 @@ class CodeSLAM:
         """Parallel mode: the calling thread runs with the tracker's share of torch's threads inside the block
         (and gets its own count back after it), so that what it does beside :meth:`process` (reading the next
         frame, say) does not compete with the mapping thread for the cores either. A no-op when sequential."""
-        if self._tracking_threads is None:
+        with _torch_threads(self._tracking_threads):
             yield
-            return
-        threads = torch.get_num_threads()
-        torch.set_num_threads(self._tracking_threads)
-        try:
-            yield
-        finally:
-            torch.set_num_threads(threads)
 
     def _process(self, frame: Frame) -> FrameResult:
         timer = _StageTimer(self.device)
@@ -306,11 +320,13 @@ class CodeSLAM:
                 if fcfg.weight > 0:
                     term = self.sparse.term(ref.sparse, views.features, sparse, self.dtype, self.device)
         frame = views.frame
-        track = self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, init, self._affine_guess(ref),
-                                   valid=frame.valid, reprojection=term,
-                                   min_feature_inliers=fcfg.min_inliers if term is not None else 0,
-                                   feature_threshold=fcfg.pnp_threshold,
-                                   T_kf_prior=T_kf_guess if len(self._records) >= 2 else None)
+        n = self._alignment_threads
+        with _torch_threads(None if n is None else min(n, torch.get_num_threads())):
+            track = self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, init,
+                                       self._affine_guess(ref), valid=frame.valid, reprojection=term,
+                                       min_feature_inliers=fcfg.min_inliers if term is not None else 0,
+                                       feature_threshold=fcfg.pnp_threshold,
+                                       T_kf_prior=T_kf_guess if len(self._records) >= 2 else None)
         source = "direct"
         if term is not None:
             source = "direct+features" if not track.photometric_reason else "features"

@@ -85,3 +85,35 @@ def test_the_mapping_thread_and_the_tracker_split_torch_threads():
     assert seen.get("MainThread") == {3}, seen  # the first keyframe, decoded inline by the tracking thread
     with pytest.raises(Exception, match="mapping_threads"):
         CodeSLAM(SLAMConfig(), factory, parallel=True, mapping_threads=0)
+
+
+def test_the_alignment_runs_on_its_own_thread_count_and_the_mapping_on_the_callers():
+    """Sequential mode: each frame's photometric alignment with ``alignment_threads`` (1 by default), the
+    keyframes' decoding (mapping) with the caller's count; None leaves the alignment at the caller's."""
+    factory = standin_depth_model()
+    seq = MemorySequence(preset_frames(21, 8, "walk", 10.0))
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        for alignment_threads, expected in ((1, {1}), (None, {2})):
+            decoded, aligned = set(), set()
+
+            def recording(frame, decoded=decoded):
+                decoded.add(torch.get_num_threads())
+                return factory(frame)
+
+            system = CodeSLAM(SLAMConfig(), recording, alignment_threads=alignment_threads)
+            track = system.tracker.track
+
+            def counting(*args, track=track, aligned=aligned, **kwargs):
+                aligned.add(torch.get_num_threads())
+                return track(*args, **kwargs)
+
+            system.tracker.track = counting
+            run_slam(seq, system, seq.frames[0].camera)
+            assert aligned == expected and decoded == {2}, (alignment_threads, aligned, decoded)
+            assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    with pytest.raises(Exception, match="alignment_threads"):
+        CodeSLAM(SLAMConfig(), factory, alignment_threads=0)
