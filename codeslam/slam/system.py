@@ -248,6 +248,16 @@ class CodeSLAM:
             with timer("track"):
                 track, sparse, source = self._track(views, ref, self._predict(ref))
         self._undo = None
+        if not track.ok and self.mapper.busy:
+            # Parallel mode: the keyframe asked for on an earlier frame is still being decoded, and this frame
+            # has left the older reference behind (a parallel HoloLens run lost frames 78-80 and 148-150 so,
+            # each right after a keyframe was asked for): wait for that keyframe, as PTAM's tracker does only
+            # when it must, and track against it.
+            self._apply(self.mapper.wait(interrupt=True))
+            if self.ref is not ref:
+                ref = self.ref
+                with timer("track"):
+                    track, sparse, source = self._track(views, ref, self._predict(ref))
         if not track.ok and self._promote_last():  # the previous frame, tracked, becomes the reference
             ref = self.ref
             with timer("track"):
