@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 
@@ -98,6 +99,13 @@ class LevelData:
     @property
     def code_size(self) -> int:
         return self.jac.shape[1]
+
+    @cached_property
+    def jac_channels_last(self) -> torch.Tensor:
+        """``jac`` in channels-last memory, for bilinear lookups of J_B at warped pixels: ``grid_sample`` reads
+        the C values of a pixel's four neighbours from one place instead of C planes (measured at C = 128,
+        128x96, 24,000 points, one thread: 40 -> 7 ms per lookup). Made once per level, on first use."""
+        return self.jac.contiguous(memory_format=torch.channels_last)
 
     def prox(self, codes: torch.Tensor) -> torch.Tensor:
         """codes (F, C) -> (F, 1, H, W) decoded proximity ``prox0 + J c`` (exact for a linear decoder)."""

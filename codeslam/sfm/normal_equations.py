@@ -100,7 +100,10 @@ def assemble(
     # (P, T, N, L) dense columns [xi_BA, a, b] (L = 8), then [omega_A, omega_B] with a rolling shutter (L = 14)
     Jd = torch.cat([terms.J_rel, terms.J_aff] + ([terms.J_rs] if rs else []), dim=-1)
     L = Jd.shape[-1]
-    G = level.jac.reshape(F_, C, N)  # (F, C, N), J_A^T of every frame (a view)
+    # (F, N, C) J_A of every frame, a view of the channels-last copy: the pixel rows that the geometric term
+    # picks for H_{c_A c_B} are gathered as whole rows (measured at C = 128, 8,000 of 12,288 pixels, one thread:
+    # 2.3 ms for the columns of the (C, N) layout, 0.35 ms for the rows of this one)
+    Gt = level.jac_channels_last.permute(0, 2, 3, 1).reshape(F_, N, C)
 
     with _timed(profile, "gemm", dev):
         Jd_flat = Jd.reshape(P, T * N, L)
@@ -122,11 +125,11 @@ def assemble(
         for f in frames:
             sl = code_A_free[f]
             with _timed(profile, "gemm", dev):
-                H[sl, sl] += (G[f] * q[f]) @ G[f].T  # J_A^T diag(q) J_A, (C, C)
-            g[sl] += G[f] @ gr[f]
+                H[sl, sl] += Gt[f].T @ (Gt[f] * q[f].unsqueeze(-1))  # J_A^T diag(q) J_A, (C, C)
+            g[sl] += Gt[f].T @ gr[f]
         with _timed(profile, "gemm", dev):
-            # J_A^T (w s_A J_dense), (C, L) per pair; (M^T J_A^T)^T is the faster GEMM shape for a (C, N) J_A.
-            H_Ad = [None if code_A_free[a] is None else (M[p].T @ G[a].T).T for p, (a, _) in enumerate(pair_list)]
+            # J_A^T (w s_A J_dense), (C, L) per pair
+            H_Ad = [None if code_A_free[a] is None else (M[p].T @ Gt[a]).T for p, (a, _) in enumerate(pair_list)]
 
     # ---- codes of B through the geometric residual's J_B[v] -------------------------------------------------
     do_B = terms.JB_w is not None and GEOMETRIC in terms.types
@@ -160,7 +163,8 @@ def assemble(
                 H[sB, sB] += (JB * (wk * sBk * sBk)) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
                 H_Bd = JB @ ((wk * sBk).unsqueeze(-1) * Jd[p, tg, k])  # (C, L)
                 if sA is not None:  # J_A^T diag(w s_A s_B) J_B[v]
-                    _add(H, sA, sB, (G[a][:, k] * (wk * sA_g[p, k] * sBk)) @ JB.T, True)
+                    GA = Gt[a].index_select(0, k).mul_((wk * sA_g[p, k] * sBk).unsqueeze(-1))  # (M, C)
+                    _add(H, sA, sB, GA.T @ JB.T, True)
             g[sB] += JB @ (wk * sBk * rg[p, k])
             H_Bloc = H_Bd @ Q[p]  # (C, L + 6)
             for (j0, j1), sj in zip(loc, sls):

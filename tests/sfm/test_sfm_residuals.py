@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 from sfm_scene import look_pose, make_frames
@@ -181,7 +183,7 @@ def test_sobel_and_interpolant_jacobians_agree_where_both_gradients_are_exact(pr
     uv = level.uv.reshape(level.height, level.width, 2)
     ramp = torch.stack([0.2 + 0.01 * uv[..., 0] + 0.02 * uv[..., 1], 0.8 - 0.015 * uv[..., 0] + 0.01 * uv[..., 1],
                         0.3 + 0.005 * uv[..., 0] + 0.003 * uv[..., 1]])[:, None]  # (3, 1, H, W)
-    level = type(level)(**{**level.__dict__, "gray": ramp, "gray_grad": image_gradients(ramp)})
+    level = dataclasses.replace(level, gray=ramp, gray_grad=image_gradients(ramp))
     layout = _layout([BlockId(POSE, 0)])
     J = {}
     for mode in ("sobel", "interpolant"):
@@ -239,8 +241,7 @@ def test_occluded_pixels_are_down_weighted_photometric_only_as_the_paper_or_in_b
     level, state = problem
     cfg = SfMConfig(occlusion_weight=0.1, occlusion_geometric=False)  # the paper's (v)
     # Push frame 1's surface much closer (proximity + 0.3): points of 0 warped into 1 lie far behind it.
-    near = type(level)(**{**level.__dict__, "prox0": level.prox0 + torch.tensor([0, 0.3, 0], dtype=D)[:, None,
-                                                                                                    None, None]})
+    near = dataclasses.replace(level, prox0=level.prox0 + torch.tensor([0, 0.3, 0], dtype=D)[:, None, None, None])
     ev = evaluate_pairs(near, PAIRS, state.poses, state.codes, state.affine, cfg)
     p = 0  # pair (0, 1)
     valid = ev.valid[p, 0]
@@ -254,7 +255,7 @@ def test_occluded_pixels_are_down_weighted_photometric_only_as_the_paper_or_in_b
 def test_uncertainty_widens_the_geometric_sigma(problem):
     level, state = problem
     b = torch.full_like(level.prox0, 0.03)
-    lv = type(level)(**{**level.__dict__, "uncertainty": b})
+    lv = dataclasses.replace(level, uncertainty=b)
     cfg = SfMConfig(use_uncertainty=True, geometric_space="proximity", sigma_geometric=0.02)
     ev = evaluate_pairs(lv, PAIRS, state.poses, state.codes, state.affine, cfg)
     t = 1  # geometric
@@ -266,7 +267,7 @@ def test_uncertainty_is_carried_into_log_depth_at_first_order(problem):
     """In log depth a proximity scale b becomes b |d log D / d P| = b / (P (1 - P)) (from D = a (1 - P) / P)."""
     level, state = problem
     b = torch.full_like(level.prox0, 0.03)
-    lv = type(level)(**{**level.__dict__, "uncertainty": b})
+    lv = dataclasses.replace(level, uncertainty=b)
     cfg = SfMConfig(use_uncertainty=True, sigma_geometric=0.08)
     ev = evaluate_pairs(lv, PAIRS, state.poses, state.codes, state.affine, cfg)
     prox = lv.prox(state.codes)  # (F, 1, H, W)
@@ -287,7 +288,7 @@ def test_log_depth_geometric_residual_ignores_a_common_scale():
     a = level.avg_depth[:, None, None, None]
     s = 1.7
     depth = a * (1 - level.prox0) / level.prox0
-    scaled = type(level)(**{**level.__dict__, "prox0": a / (s * depth + a)})
+    scaled = dataclasses.replace(level, prox0=a / (s * depth + a))
     scaled_poses = poses.clone()
     scaled_poses[:, :3, 3] *= s
     pair = torch.tensor([[0, 1]])
@@ -322,7 +323,7 @@ def test_geometric_lookups_touching_a_hole_of_b_are_masked(problem):
     jac = level.jac.clone()
     prox0[1, :, 8:14, 10:20] = 0.0  # a hole (the invalid sentinel) in frame 1's proximity
     jac[1, :, 8:14, 10:20] = 0.0
-    holey = type(level)(**{**level.__dict__, "prox0": prox0, "jac": jac})
+    holey = dataclasses.replace(level, prox0=prox0, jac=jac)
     ev = evaluate_pairs(holey, PAIRS, state.poses, state.codes, state.affine, SfMConfig())
     p = 0  # pair (0, 1): B = 1
     u, v = ev.v[p].unbind(-1)
@@ -341,7 +342,7 @@ def test_photometric_residuals_read_only_real_image_pixels(problem):
     ok = torch.ones_like(level.gray)
     ok[0, 0, :, :10] = 0  # frame 0: left 10 columns not real
     ok[1] = 0  # frame 1: nothing real
-    masked = type(level)(**{**level.__dict__, "gray_valid": ok})
+    masked = dataclasses.replace(level, gray_valid=ok)
     ev = evaluate_pairs(masked, PAIRS, state.poses, state.codes, state.affine, cfg)
     torch.testing.assert_close(ev.r, base.r * ev.valid)  # same residuals where still valid
     assert torch.equal(ev.valid[:, 1], base.valid[:, 1])  # geometric rows untouched
@@ -380,7 +381,7 @@ def test_geometric_stride_keeps_a_grid_of_the_finest_level_weighted_by_its_area(
     torch.testing.assert_close(ev.fixed_weight[:, 1], 4.0 * base.fixed_weight[:, 1])
     assert torch.equal(ev.valid[:, 0], base.valid[:, 0])  # photometric: every pixel, as before
     torch.testing.assert_close(ev.fixed_weight[:, 0], base.fixed_weight[:, 0])
-    coarse = type(level)(**{**level.__dict__, "level": 1})  # level 1: stride 2 >> 1 = 1, every pixel
+    coarse = dataclasses.replace(level, level=1)  # level 1: stride 2 >> 1 = 1, every pixel
     ev1 = evaluate_pairs(coarse, PAIRS, state.poses, state.codes, state.affine, SfMConfig(geometric_stride=2))
     assert torch.equal(ev1.valid, base.valid)
     torch.testing.assert_close(ev1.fixed_weight, base.fixed_weight)
