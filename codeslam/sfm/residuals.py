@@ -381,7 +381,8 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
     if GEOMETRIC in ev.types and with_code_b:  # J_B[v] where the geometric residual has weight
         tg = ev.types.index(GEOMETRIC)
         JB_idx = [k.nonzero().squeeze(-1) for k in w[:, tg] != 0]  # P x (M_p,); w is 0 where masked
-        JB_w = sample_by_frame(level.jac_channels_last, pairs[:, 1].tolist(), [ev.v[p, k] for p, k in enumerate(JB_idx)])
+        JB_w = sample_by_frame(level.jac_channels_last, pairs[:, 1].tolist(),
+                               [ev.v[p, k] for p, k in enumerate(JB_idx)])
     return PairTerms(
         types=ev.types,
         r=ev.r,
