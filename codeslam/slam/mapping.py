@@ -188,6 +188,8 @@ class Mapper:
             if report.rejected:
                 self.window.restore(before)
         self.refresh_points()
+        if len(self.window.keyframes) == 2 and not report.rejected:  # a map segment's first solve sets its scale
+            report.depth_scale = {k.id: k.median_depth() / depth_before[k.id] for k in self.window.keyframes}
         ms["window"] = 1e3 * (time.perf_counter() - t3)
         self.updates += 1
         if self.parallel:

@@ -115,13 +115,16 @@ class MapKeyframe:
 class WindowReport:
     """What one window optimisation did. pairs: (A, B) keyframe ids with residuals; levels: (level, LM report)
     coarse to fine; ms: wall time; rejected: why the solve was rolled back ('' when kept); interrupted: the solve
-    stopped early because the tracker needed the mapping thread (its values are the last accepted step's)."""
+    stopped early because the tracker needed the mapping thread (its values are the last accepted step's);
+    depth_scale: keyframe id -> median depth after / before the solve, set for a map segment's first solve (see
+    ``CodeSLAM._rescale``)."""
 
     pairs: list[tuple[int, int]] = field(default_factory=list)
     levels: list[tuple[int, LMReport]] = field(default_factory=list)
     ms: float = 0.0
     rejected: str = ""
     interrupted: bool = False
+    depth_scale: dict[int, float] = field(default_factory=dict)
 
     @property
     def iterations(self) -> int:
