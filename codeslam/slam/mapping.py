@@ -90,6 +90,11 @@ class Mapper:
     def busy(self) -> bool:
         return self._busy.is_set()
 
+    @property
+    def decoding(self) -> bool:
+        """The keyframe asked for last is still being decoded (parallel mode): not yet handed to the tracker."""
+        return self._thread is not None and not self._decoded.is_set()
+
     def insert(self, job: MappingJob) -> MappingResult | None:
         """Add a keyframe. Inline: do it now and return the result. Parallel: hand it to the mapping thread and
         return None (collect the result later); refused (returns None and sets ``job`` aside) while busy —

@@ -250,11 +250,13 @@ class CodeSLAM:
                 track, sparse, source = self._track(views, ref, self._predict(ref))
         self._undo = None
         if not track.ok and self.mapper.busy:
-            # Parallel mode: the keyframe asked for on an earlier frame is still being decoded, and this frame
-            # has left the older reference behind (a parallel HoloLens run lost frames 78-80 and 148-150 so,
-            # each right after a keyframe was asked for): wait for that keyframe, as PTAM's tracker does only
-            # when it must, and track against it.
-            self._apply(self.mapper.wait(interrupt=True))
+            # Parallel mode: the keyframe asked for on an earlier frame may be decoded by now or still being
+            # decoded, and this frame has left the older reference behind (a parallel HoloLens run lost frames
+            # 78-80 and 148-150 so, each right after a keyframe was asked for): take it, waiting for its decoding
+            # (not for the window solve), as PTAM's tracker waits only when it must, and track against it.
+            self._apply(self.mapper.collect())
+            if self.ref is ref:  # wait() returns once the keyframe is handed over; collect() takes one just done
+                self._apply(self.mapper.wait(interrupt=True) if self.mapper.decoding else self.mapper.collect())
             if self.ref is not ref:
                 ref = self.ref
                 with timer("track"):
