@@ -145,9 +145,11 @@ def guided_mask(uv_pred: np.ndarray, uv_b: np.ndarray, radius: float) -> np.ndar
     keypoint lies within ``radius`` pixels of the prediction (non-finite predictions allow nothing)."""
     # |a - b|^2 = |a|^2 + |b|^2 - 2 a.b as one matrix product: a quarter of the time of the (Na, Nb, 2)
     # difference array, which took 15 ms of the 40 ms feature tracking per frame on ~1000 x 1000 keypoints.
-    # float64 keeps the cancellation error (~1e-10 px^2 at 512 px) far below any radius.
-    d2 = (uv_pred**2).sum(1)[:, None] + (uv_b**2).sum(1)[None, :] - 2.0 * (uv_pred @ uv_b.T)
-    return np.isfinite(d2) & (d2 <= radius * radius)
+    # In float32 (3.0 -> 1.7 ms there): its cancellation error is a few ulp of |uv|^2, under 1 px^2 for images
+    # up to 2000 px wide, against the radius^2 of hundreds of px^2 (the same masks on 1000 x 1000 random points).
+    a, b = uv_pred.astype(np.float32), uv_b.astype(np.float32)
+    d2 = (a * a).sum(1)[:, None] + (b * b).sum(1)[None, :] - np.float32(2.0) * (a @ b.T)
+    return np.isfinite(d2) & (d2 <= np.float32(radius * radius))
 
 
 def project_points(xyz: np.ndarray, T_ba: np.ndarray, camera: PinholeCamera) -> np.ndarray:
