@@ -52,7 +52,7 @@ from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult
 from codeslam.slam.poses import project_to_se3
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
-from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport, WindowSnapshot
+from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport
 
 #: A keyframe's depth model: the frame (resampled to the model's camera) -> its linear decoder
 #: ``prox_l(c) = prox0_l + J_l c`` on every pyramid level. The network's reads ``frame.image`` only
@@ -202,8 +202,7 @@ class CodeSLAM:
         self._matches: FrameMatches | None = None  # the last frame's keypoints matched to the reference
         self._last_tracked: tuple | None = None  # (views, ref, sparse, record position) of a tracked non-keyframe
         self._lost = 0  # consecutive frames whose pose is only predicted
-        self._undo: WindowSnapshot | None = None  # the map before the last window solve (sequential mode)
-        self._undo_scale: dict[int, float] = {}  # how that solve rescaled its keyframes' depths (see _rescale)
+        self._undo: MappingResult | None = None  # the last window solve, to undo it (sequential mode)
         self._next_id = 0
 
     @property
@@ -254,9 +253,9 @@ class CodeSLAM:
             # decoded, and this frame has left the older reference behind (a parallel HoloLens run lost frames
             # 78-80 and 148-150 so, each right after a keyframe was asked for): take it, waiting for its decoding
             # (not for the window solve), as PTAM's tracker waits only when it must, and track against it.
-            self._apply(self.mapper.collect())
-            if self.ref is ref:  # wait() returns once the keyframe is handed over; collect() takes one just done
-                self._apply(self.mapper.wait(interrupt=True) if self.mapper.decoding else self.mapper.collect())
+            if self.mapper.decoding:
+                self._apply(self.mapper.wait(interrupt=True))  # returns once the keyframe is handed over
+            self._apply(self.mapper.collect())  # one handed over meanwhile
             if self.ref is not ref:
                 ref = self.ref
                 with timer("track"):
@@ -451,7 +450,6 @@ class CodeSLAM:
         for m in done:
             if m.report is not None:  # a solve (not the early hand-over of a decoded keyframe)
                 self._rescale(m.report.depth_scale)
-                self._undo_scale = m.report.depth_scale
             kf = m.keyframe
             res = self._results[m.frame_position]
             res.window, res.marginalised_id = m.report, m.marginalised
@@ -470,13 +468,12 @@ class CodeSLAM:
                 res.status = TRACKED
             self.ref = kf
             self._matches = None
-            self._undo = m.before if not self.parallel else None
+            self._undo = m if not self.parallel and m.before is not None else None
 
     def _roll_back(self, why: str) -> str:
-        snap = self._undo
-        self._undo = None
-        self.mapper.roll_back(snap)
-        self._rescale({k: 1.0 / s for k, s in self._undo_scale.items()})
+        m, self._undo = self._undo, None
+        self.mapper.roll_back(m.before)
+        self._rescale({k: 1.0 / s for k, s in m.report.depth_scale.items()})
         return why
 
     def _rescale(self, scale: dict[int, float]) -> None:
