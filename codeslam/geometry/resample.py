@@ -23,7 +23,7 @@ from kornia.geometry.calibration import distort_points
 from codeslam.constants import ANTIALIAS_MIN_SHRINK
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera, pixel_grid, project, unproject_jac_depth
-from codeslam.geometry.image import bilinear_sample, inside_image, nearest_sample
+from codeslam.geometry.image import inside_image, pixels_to_grid
 
 
 def _check(image: torch.Tensor, src: PinholeCamera, dst: PinholeCamera, what: str) -> None:
@@ -71,8 +71,40 @@ def resample_valid_mask(
 ) -> torch.Tensor:
     """(dst.height, dst.width) bool: the destination pixels whose ray falls inside the source image's pixel
     footprint; :func:`resample_image` and :func:`resample_depth` write 0 everywhere else."""
+    return _valid_mask_cached(src, dst).to(device)
+
+
+@functools.lru_cache(maxsize=16)
+def _valid_mask_cached(src: PinholeCamera, dst: PinholeCamera) -> torch.Tensor:
+    # Depends on the two cameras only, like the map: rebuilding it cost 2-3 ms per 640x480 call, and a TUM frame
+    # makes five such calls (undistortion, the network's camera, the feature camera).
     uv = source_pixels(src, dst, torch.float64)  # on the CPU: float64 everywhere (MPS has none)
-    return inside_image(uv, src.height, src.width, margin=0.5).to(device)
+    return inside_image(uv, src.height, src.width, margin=0.5)
+
+
+@functools.lru_cache(maxsize=16)
+def _sampling_grid(src: PinholeCamera, dst: PinholeCamera, dtype: torch.dtype, device: str,
+                   map_dtype: torch.dtype | None) -> torch.Tensor:
+    """(1, 1, dst.height * dst.width, 2) ``grid_sample`` coordinates of :func:`source_pixels` (computed in ``dtype``
+    on ``device``, or with ``map_dtype`` in that dtype on the CPU, then moved): what
+    :func:`~codeslam.geometry.image.bilinear_sample` and :func:`~codeslam.geometry.image.nearest_sample` compute
+    from the map on every call, with the same arithmetic, so the resampled values are bit for bit theirs.
+    Shared: do not modify it in place."""
+    if map_dtype is None:
+        uv = source_pixels(src, dst, dtype, device)
+    else:
+        uv = source_pixels(src, dst, map_dtype).to(device, dtype)
+    return pixels_to_grid(uv.reshape(1, 1, -1, 2), src.height, src.width)
+
+
+def _sample(image: torch.Tensor, src: PinholeCamera, dst: PinholeCamera, mode: str,
+            map_dtype: torch.dtype | None = None) -> torch.Tensor:
+    """(B, C, src.height, src.width) -> (B, C, dst.height, dst.width), looked up at the cached grid."""
+    B, C = image.shape[:2]
+    grid = _sampling_grid(src, dst, image.dtype, str(image.device), map_dtype)
+    out = F.grid_sample(image, grid.expand(B, -1, -1, -1), mode=mode, padding_mode="border" if mode == "bilinear"
+                        else "zeros", align_corners=True)  # (B, C, 1, N)
+    return out.reshape(B, C, dst.height, dst.width)
 
 
 def _antialias(image: torch.Tensor, src: PinholeCamera, dst: PinholeCamera) -> tuple[torch.Tensor, PinholeCamera]:
@@ -102,9 +134,7 @@ def resample_image(
         image, src_used = _antialias(image, src, dst)
     else:
         src_used = src
-    B = image.shape[0]
-    uv = source_pixels(src_used, dst, image.dtype, image.device)  # (H_dst, W_dst, 2)
-    values, _ = bilinear_sample(image, uv.expand((B,) + uv.shape), padding_mode="border")  # (B, C, H_dst, W_dst)
+    values = _sample(image, src_used, dst, "bilinear")  # (B, C, H_dst, W_dst)
     mask = resample_valid_mask(src, dst, image.device)
     return values * mask.to(values.dtype)
 
@@ -115,11 +145,13 @@ def resample_depth(depth: torch.Tensor, src: PinholeCamera, dst: PinholeCamera) 
     pixels whose ray leaves the source image are 0. Depth values are unchanged (same rays, same z)."""
     _check(depth, src, dst, "depth map")
     depth = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.zeros_like(depth))
-    B = depth.shape[0]
-    uv = source_pixels(src, dst, torch.float64).to(depth.device, depth.dtype)  # float64 on the CPU, then moved
-    values, _ = nearest_sample(depth, uv.expand((B,) + uv.shape))  # (B, 1, H_dst, W_dst)
+    values = _sample(depth, src, dst, "nearest", torch.float64)  # the map in float64 on the CPU, then moved
     mask = resample_valid_mask(src, dst, depth.device)
     return values * mask.to(values.dtype)
+
+
+# (src, dst) -> (the source mask, the result) of the last resample_validity between those cameras
+_last_validity: dict[tuple[PinholeCamera, PinholeCamera], tuple[torch.Tensor, torch.Tensor | None]] = {}
 
 
 def resample_validity(
@@ -128,12 +160,22 @@ def resample_validity(
     """Where a resampled image holds real pixels. valid: (src.height, src.width) bool of the source's real pixels
     (None: all of them) -> (dst.height, dst.width) bool: inside the source (:func:`resample_valid_mask`) and with
     no invalid source pixel in the bilinear / anti-aliasing footprint; None when every pixel is valid."""
-    device = None if valid is None else valid.device
-    out = resample_valid_mask(src, dst, device)
-    if valid is not None:
-        share = resample_image(valid[None, None].to(torch.float32), src, dst)[0, 0]  # share of real pixels
-        out = out & (share >= 1.0 - 1e-4)
-    return None if bool(out.all()) else out
+    if valid is None:
+        out = resample_valid_mask(src, dst)
+        return None if bool(out.all()) else out.clone()  # the cached mask is shared
+    # A reader that masks a fixed border gives every frame the same mask: the last result per pair of cameras is
+    # kept (the share below, an anti-aliased resampling of the whole mask, took 2-5 ms of every 640x480 frame).
+    last = _last_validity.get((src, dst))
+    if (last is not None and last[0].shape == valid.shape and last[0].device == valid.device
+            and torch.equal(last[0], valid)):
+        return None if last[1] is None else last[1].clone()
+    share = resample_image(valid[None, None].to(torch.float32), src, dst)[0, 0]  # share of real pixels
+    out = resample_valid_mask(src, dst, valid.device) & (share >= 1.0 - 1e-4)
+    out = None if bool(out.all()) else out
+    if len(_last_validity) >= 16:
+        _last_validity.clear()
+    _last_validity[(src, dst)] = (valid.clone(), out)  # one item: a reader on another thread sees all or none
+    return None if out is None else out.clone()
 
 
 def undistort_image(image: torch.Tensor, camera: PinholeCamera) -> torch.Tensor:
