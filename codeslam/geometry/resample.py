@@ -70,8 +70,8 @@ def resample_valid_mask(
     src: PinholeCamera, dst: PinholeCamera, device: torch.device | str | None = None
 ) -> torch.Tensor:
     """(dst.height, dst.width) bool: the destination pixels whose ray falls inside the source image's pixel
-    footprint; :func:`resample_image` and :func:`resample_depth` write 0 everywhere else."""
-    return _valid_mask_cached(src, dst).to(device)
+    footprint; :func:`resample_image` and :func:`resample_depth` write 0 everywhere else. The caller's own copy."""
+    return _valid_mask_cached(src, dst).to(device, copy=True)
 
 
 @functools.lru_cache(maxsize=16)
@@ -135,8 +135,7 @@ def resample_image(
     else:
         src_used = src
     values = _sample(image, src_used, dst, "bilinear")  # (B, C, H_dst, W_dst)
-    mask = resample_valid_mask(src, dst, image.device)
-    return values * mask.to(values.dtype)
+    return values * _valid_mask_cached(src, dst).to(image.device, values.dtype)
 
 
 def resample_depth(depth: torch.Tensor, src: PinholeCamera, dst: PinholeCamera) -> torch.Tensor:
@@ -146,8 +145,7 @@ def resample_depth(depth: torch.Tensor, src: PinholeCamera, dst: PinholeCamera) 
     _check(depth, src, dst, "depth map")
     depth = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.zeros_like(depth))
     values = _sample(depth, src, dst, "nearest", torch.float64)  # the map in float64 on the CPU, then moved
-    mask = resample_valid_mask(src, dst, depth.device)
-    return values * mask.to(values.dtype)
+    return values * _valid_mask_cached(src, dst).to(depth.device, values.dtype)
 
 
 # (src, dst) -> (the source mask, the result) of the last resample_validity between those cameras
@@ -162,7 +160,7 @@ def resample_validity(
     no invalid source pixel in the bilinear / anti-aliasing footprint; None when every pixel is valid."""
     if valid is None:
         out = resample_valid_mask(src, dst)
-        return None if bool(out.all()) else out.clone()  # the cached mask is shared
+        return None if bool(out.all()) else out
     # A reader that masks a fixed border gives every frame the same mask: the last result per pair of cameras is
     # kept (the share below, an anti-aliased resampling of the whole mask, took 2-5 ms of every 640x480 frame).
     last = _last_validity.get((src, dst))

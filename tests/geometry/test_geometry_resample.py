@@ -204,3 +204,48 @@ def test_resample_validity_marks_exactly_the_pixels_undistortion_fills():
     half = ideal.resized(80, 60)
     out = resample_validity(mask, ideal, half)
     assert out is not None and not bool(out[:, 40].any()) and bool(out[:, 20].all()) and bool(out[:, 60].all())
+
+
+def test_cached_lookups_give_the_uncached_values_and_no_shared_tensor():
+    """The sampling grid and the valid mask are cached per pair of cameras (every frame of a sequence is resampled
+    between the same cameras). The values are bit for bit those of the lookup at the map computed afresh, and
+    what a caller gets can be changed without touching the cache."""
+    from codeslam.geometry.image import bilinear_sample, nearest_sample
+
+    dist = PinholeCamera(160.0, 160.0, 79.5, 61.5, 160, 120, TUM_FR1_DIST)
+    ideal = dist.without_distortion()
+    small = ideal.resized(40, 30)  # no anti-aliasing pass below a shrink of 4: the lookup alone
+    img = torch.rand(2, 3, 120, 160, generator=torch.Generator().manual_seed(4))
+    depth = torch.rand(1, 1, 120, 160, generator=torch.Generator().manual_seed(5)) + 0.5
+    for src, dst in ((ideal, small), (dist, ideal)):
+        mask = inside_image(source_pixels(src, dst, F64), src.height, src.width, margin=0.5)
+        uv = source_pixels(src, dst, torch.float32)
+        direct, _ = bilinear_sample(img, uv.expand((2,) + uv.shape), padding_mode="border")
+        for _ in range(2):  # the first call fills the caches, the second reads them
+            assert torch.equal(resample_valid_mask(src, dst), mask)
+            assert torch.equal(resample_image(img, src, dst, antialias=False), direct * mask)
+        uv64 = source_pixels(src, dst, F64).to(torch.float32)
+        near, _ = nearest_sample(depth, uv64[None])
+        assert torch.equal(resample_depth(depth, src, dst), near * mask)
+    resample_valid_mask(dist, ideal)[:] = False  # the caller's own copy: the cache keeps its mask
+    assert bool(resample_valid_mask(dist, ideal).any())
+    assert torch.equal(resample_image(img, dist, ideal, antialias=False).ne(0).any(1), mask.expand(2, -1, -1))
+
+
+def test_validity_of_a_repeated_mask_comes_from_the_cache_and_is_the_callers_own():
+    """A reader that masks a fixed border gives every frame the same validity mask; its resampling is kept per
+    pair of cameras, and a different mask is resampled afresh."""
+    from codeslam.geometry.resample import resample_validity
+
+    cam = PinholeCamera(160.0, 160.0, 79.5, 61.5, 160, 120)
+    half = cam.resized(80, 60)
+    valid = torch.ones(120, 160, dtype=torch.bool)
+    valid[:, 80] = False
+    first = resample_validity(valid, cam, half)
+    first[:] = True  # the caller's to change
+    again = resample_validity(valid.clone(), cam, half)
+    assert not bool(again[:, 40].any()) and bool(again[:, 20].all())
+    valid[:, 100] = False  # another mask between the same cameras is resampled afresh
+    other = resample_validity(valid, cam, half)
+    assert not bool(other[:, 50].any()) and bool(again[:, 50].all())
+    assert resample_validity(None, cam, cam) is None
