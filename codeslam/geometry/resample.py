@@ -97,13 +97,14 @@ def _sampling_grid(src: PinholeCamera, dst: PinholeCamera, dtype: torch.dtype, d
     return pixels_to_grid(uv.reshape(1, 1, -1, 2), src.height, src.width)
 
 
-def _sample(image: torch.Tensor, src: PinholeCamera, dst: PinholeCamera, mode: str,
+def _sample(image: torch.Tensor, src: PinholeCamera, dst: PinholeCamera, mode: str, padding_mode: str,
             map_dtype: torch.dtype | None = None) -> torch.Tensor:
-    """(B, C, src.height, src.width) -> (B, C, dst.height, dst.width), looked up at the cached grid."""
+    """(B, C, src.height, src.width) -> (B, C, dst.height, dst.width), looked up at the cached grid with
+    ``grid_sample``'s ``mode`` and ``padding_mode``."""
     B, C = image.shape[:2]
     grid = _sampling_grid(src, dst, image.dtype, str(image.device), map_dtype)
-    out = F.grid_sample(image, grid.expand(B, -1, -1, -1), mode=mode, padding_mode="border" if mode == "bilinear"
-                        else "zeros", align_corners=True)  # (B, C, 1, N)
+    out = F.grid_sample(image, grid.expand(B, -1, -1, -1), mode=mode, padding_mode=padding_mode,
+                        align_corners=True)  # (B, C, 1, N)
     return out.reshape(B, C, dst.height, dst.width)
 
 
@@ -134,7 +135,7 @@ def resample_image(
         image, src_used = _antialias(image, src, dst)
     else:
         src_used = src
-    values = _sample(image, src_used, dst, "bilinear")  # (B, C, H_dst, W_dst)
+    values = _sample(image, src_used, dst, "bilinear", "border")  # (B, C, H_dst, W_dst)
     return values * _valid_mask_cached(src, dst).to(image.device, values.dtype)
 
 
@@ -144,7 +145,7 @@ def resample_depth(depth: torch.Tensor, src: PinholeCamera, dst: PinholeCamera) 
     pixels whose ray leaves the source image are 0. Depth values are unchanged (same rays, same z)."""
     _check(depth, src, dst, "depth map")
     depth = torch.where(torch.isfinite(depth) & (depth > 0), depth, torch.zeros_like(depth))
-    values = _sample(depth, src, dst, "nearest", torch.float64)  # the map in float64 on the CPU, then moved
+    values = _sample(depth, src, dst, "nearest", "zeros", torch.float64)  # the map in float64 on the CPU, moved
     return values * _valid_mask_cached(src, dst).to(depth.device, values.dtype)
 
 
