@@ -160,8 +160,7 @@ class SparseTracker:
             seen[seen] = has_3d[previous.point[seen]]  # and whose point still has a depth at the current code
             if seen.any():
                 prev_pts = previous.point[seen]
-                pred_prev = pred[np.searchsorted(idx, prev_pts)]  # the same points' predicted positions
-                allowed_p = guided_mask(pred_prev, frame.uv, cfg.guided_radius)
+                allowed_p = allowed[np.searchsorted(idx, prev_pts)]  # the same points' rows of the mask
                 pa, pb, pd = match(previous.features.desc[seen], frame.desc, cfg.match_ratio, cfg.max_hamming,
                                    allowed_p, True)
                 pts, kps, d = (np.concatenate([pts, prev_pts[pa]]), np.concatenate([kps, pb]),

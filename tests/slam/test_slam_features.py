@@ -100,6 +100,24 @@ def test_guided_matching_uses_only_predicted_neighbourhoods():
     assert np.median(err) < 2.0
 
 
+def test_guided_mask_is_the_distance_test_and_non_finite_predictions_allow_nothing():
+    rng = np.random.default_rng(3)
+    pred = rng.uniform(-20.0, 660.0, (300, 2))
+    pred[::37] = np.nan
+    pred[5] = [np.inf, 10.0]
+    pred[6] = [-np.inf, -np.inf]
+    uv = rng.uniform(0.0, 640.0, (400, 2))
+    radius = 25.0
+    allowed = guided_mask(pred, uv, radius)
+    with np.errstate(invalid="ignore"):
+        d2 = ((pred[:, None, :] - uv[None, :, :]) ** 2).sum(-1)  # float64 brute force
+    truth = np.isfinite(d2) & (d2 <= radius**2)
+    tie = np.abs(d2 - radius**2) < 1e-2  # float32 rounding may decide exact ties either way
+    assert allowed.dtype == bool and allowed.shape == (300, 400)
+    assert np.array_equal(allowed[~tie], truth[~tie]) and truth.sum() > 500
+    assert not allowed[::37].any() and not allowed[5].any() and not allowed[6].any()
+
+
 def test_no_texture_gives_no_features_and_pnp_refuses():
     orb = ORBExtractor()
     f = orb(np.full((96, 128), 128, np.uint8))
