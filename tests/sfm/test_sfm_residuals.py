@@ -19,6 +19,7 @@ from codeslam.sfm.residuals import (
     interpolant_gradient,
     pair_jacobians,
     robust_weights,
+    sample_by_frame,
     slant_weight,
 )
 from codeslam.sfm.variables import AFFINE, CODE, POSE, BlockId, SfMState, VariableLayout
@@ -385,3 +386,23 @@ def test_geometric_stride_keeps_a_grid_of_the_finest_level_weighted_by_its_area(
     ev1 = evaluate_pairs(coarse, PAIRS, state.poses, state.codes, state.affine, SfMConfig(geometric_stride=2))
     assert torch.equal(ev1.valid, base.valid)
     torch.testing.assert_close(ev1.fixed_weight, base.fixed_weight)
+
+
+@pytest.mark.parametrize("threads", [1, 3])
+def test_sample_by_frame_gives_each_pairs_own_lookup_bit_for_bit(threads):
+    """The lookups of one frame are split into a batch per torch thread (grid_sample's CPU kernel parallelises over
+    the batch only): every pair still gets exactly its own bilinear values, also for point counts that do not
+    divide by the thread count and for point sets too small to split."""
+    gen = torch.Generator().manual_seed(0)
+    img = torch.randn(3, 128, 24, 32, generator=gen).contiguous(memory_format=torch.channels_last)
+    sizes, frame_of = (5000, 3, 2047, 777, 4100), [0, 2, 0, 1, 1]
+    uv = [torch.rand(n, 2, generator=gen) * torch.tensor([33.0, 25.0]) - 1.0 for n in sizes]  # some outside
+    old = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        out = sample_by_frame(img, frame_of, uv)
+    finally:
+        torch.set_num_threads(old)
+    for p, f in enumerate(frame_of):
+        ref, _ = bilinear_sample(img[f:f + 1], uv[p][None])
+        assert out[p].shape == (128, sizes[p]) and torch.equal(out[p], ref[0])
