@@ -107,6 +107,11 @@ class SfMConfig:
     """Stop a level when an accepted step decreases the cost by less than this fraction."""
     step_tolerance: float = 1e-7
     """Stop a level when the step's norm falls below this."""
+    rejection_stop_decrease: float = 0.0
+    """Stop a level at a rejected step whose predicted decrease was below this fraction of the cost: a promise of
+    that size lies within what the cost moves by between evaluations (bilinear lookups, validity masks and robust
+    weights change with the state), and more damping shortens the step without changing much else. 0 switches it
+    off (every rejection raises the damping and tries again)."""
 
     def __post_init__(self) -> None:
         if not (self.photometric or self.geometric):
@@ -115,6 +120,9 @@ class SfMConfig:
                      "slant_cos_min", "damping_increase", "max_damping", "rolling_shutter_sigma"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"SfM config: {name} must be positive, got {getattr(self, name)}")
+        if not 0.0 <= self.rejection_stop_decrease < 1.0:
+            raise ConfigError("SfM config: rejection_stop_decrease must lie in [0, 1), got "
+                              f"{self.rejection_stop_decrease}")
         if not 0 < self.damping_decrease < 1 < self.damping_increase:
             raise ConfigError("SfM config: need 0 < damping_decrease < 1 < damping_increase")
         if not (isinstance(self.geometric_stride, int) and self.geometric_stride >= 1):

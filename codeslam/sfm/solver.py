@@ -155,7 +155,7 @@ def levenberg_marquardt(
         if H is None:
             H, g = problem.linearize(state, cache, layout, profile)
         delta = solve_damped(H, g, lam, cfg.min_diagonal)
-        accepted = False
+        accepted, predicted = False, math.inf  # no promise without a finite step
         if delta is not None and bool(torch.isfinite(delta).all()):
             d = delta.to(H.dtype)
             predicted = -float(g @ d + 0.5 * d @ (H @ d))  # decrease the quadratic model promises
@@ -179,6 +179,11 @@ def levenberg_marquardt(
         else:
             lam *= cfg.damping_increase
             report.rejected += 1
+            if predicted < cfg.rejection_stop_decrease * abs(cost):
+                report.reason = "rejected a step the model promised little"
+                _sync(device)
+                report.step_ms.append(1e3 * (time.perf_counter() - t0))
+                break
         _sync(device)
         report.step_ms.append(1e3 * (time.perf_counter() - t0))
         if accepted and rel < cfg.relative_cost_tolerance:

@@ -196,3 +196,47 @@ def test_float32_problem_converges_like_float64():
     assert res.poses.dtype == torch.float32
     t_err, r_err = _pose_error(res.poses[1].double(), gt[1])
     assert t_err < 0.003 and r_err < 0.1, (t_err, r_err)
+
+
+class _Drift:
+    """A problem whose every evaluation reads ``delta`` higher than the one before: a cost that moves by about
+    that much between evaluations, so steps that promise less are rejected (as bilinear lookups, masks and robust
+    weights make a real photometric cost do near its optimum)."""
+
+    def __init__(self, inner, delta):
+        self.inner, self.delta, self.calls = inner, delta, 0
+
+    def evaluate(self, state):
+        self.calls += 1
+        cost, cache = self.inner.evaluate(state)
+        return cost + self.calls * self.delta, cache
+
+    def linearize(self, *args, **kwargs):
+        return self.inner.linearize(*args, **kwargs)
+
+
+def test_a_rejected_step_that_promised_little_ends_the_level_only_when_asked():
+    kfs, codes, gt = make_frames(GT_POSES[:2], panel=False, seed=1, levels=1, width=32, height=24)
+    level = build_levels(kfs, [0])[0]
+    init = gt.clone()
+    init[1] = se3_exp(torch.tensor([0.03, 0.0, 0.0, 0.0, 0.0, 0.01], dtype=D)) @ gt[1]
+    state = SfMState(init, codes.clone(), torch.zeros(2, 2, dtype=D))
+    layout = VariableLayout.for_sfm(2, 8, 2, True, fixed=_all_codes_fixed(2))
+    pairs = torch.tensor([[0, 1], [1, 0]])
+    cost0, _ = PairProblem(level, pairs, SfMConfig()).evaluate(state)
+    reports = {}
+    for stop in (0.0, 1e-3):
+        cfg = SfMConfig(relative_cost_tolerance=0.0, step_tolerance=0.0, rejection_stop_decrease=stop)
+        problem = _Drift(PairProblem(level, pairs, cfg), 1e-5 * cost0)
+        _, reports[stop] = levenberg_marquardt(problem, state, layout, cfg, 12)
+    off, on = reports[0.0], reports[1e-3]
+    assert on.reason == "rejected a step the model promised little" and on.rejected == 1 and on.accepted >= 2
+    assert off.reason != on.reason and off.rejected >= 2 and off.iterations > on.iterations
+    assert on.costs[-1] == off.costs[on.accepted]  # the same accepted steps up to the stop
+    # A rejected step that promised much (here a NaN cost) raises the damping and the level goes on.
+    cfg = SfMConfig(initial_damping=1e-3, rejection_stop_decrease=1e-3)
+    problem = _NaNOnce(PairProblem(level, pairs, cfg))
+    _, rep = levenberg_marquardt(problem, state, layout, cfg, 5)
+    assert rep.rejected >= 1 and rep.accepted >= 1 and rep.reason != "rejected a step the model promised little"
+    with pytest.raises(Exception, match="rejection_stop_decrease"):
+        SfMConfig(rejection_stop_decrease=1.0)
