@@ -129,8 +129,9 @@ def levenberg_marquardt(
     state is kept. Stops after ``max_iterations``, when an accepted step lowers the cost by less than
     ``relative_cost_tolerance`` or is shorter than ``step_tolerance``, when the quadratic model itself predicts
     less than that relative decrease (converged as far as the linearisation can tell; this also ends the run of
-    rejections that approximate image gradients cause near the optimum), when the damping exceeds
-    ``max_damping``, or when ``interrupted()`` turns true before an iteration (reason 'interrupted'; the state is
+    rejections that approximate image gradients cause near the optimum), at a rejected step that promised less
+    than ``rejection_stop_decrease`` of the cost, when the damping exceeds ``max_damping``, or when
+    ``interrupted()`` turns true before an iteration (reason 'interrupted'; the state is
     the last accepted one, as after any stop).
     """
     report = LMReport(damping=cfg.initial_damping)
