@@ -180,13 +180,11 @@ def levenberg_marquardt(
         else:
             lam *= cfg.damping_increase
             report.rejected += 1
-            if predicted < cfg.rejection_stop_decrease * abs(cost):
-                report.reason = "rejected a step the model promised little"
-                _sync(device)
-                report.step_ms.append(1e3 * (time.perf_counter() - t0))
-                break
         _sync(device)
         report.step_ms.append(1e3 * (time.perf_counter() - t0))
+        if not accepted and predicted < cfg.rejection_stop_decrease * abs(cost):
+            report.reason = "rejected a step the model promised little"
+            break
         if accepted and rel < cfg.relative_cost_tolerance:
             report.reason = "relative cost decrease below tolerance"
             break
