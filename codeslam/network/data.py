@@ -59,7 +59,12 @@ class FrameStore:
         return self.images.shape[0]
 
     def to(self, device: torch.device | str) -> FrameStore:
-        return FrameStore(self.images.to(device), self.depth.to(device), self.groups, self.group_weights)
+        depth = self.depth
+        if torch.device(device).type != "cpu" and depth.dtype == torch.uint16:
+            # CUDA cannot index uint16 tensors (seen with torch 2.11: "index_cuda" not implemented for 'UInt16'):
+            # there the depth is held as int32, same values (depth_metres reads either).
+            depth = depth.to(torch.int32)
+        return FrameStore(self.images.to(device), depth.to(device), self.groups, self.group_weights)
 
 
 def _same_camera(a: PinholeCamera, b: PinholeCamera, rtol: float = 1e-6) -> bool:
