@@ -138,6 +138,13 @@ def markdown(results: dict, n_max: int) -> str:
     return "\n".join(lines)
 
 
+def dataset_labels(paths: list[Path]) -> list[str]:
+    """A row label per dataset: its folder name, with the parent folder where two share a name (two generator
+    runs' scene_000 would otherwise fill one row with both)."""
+    names = [p.name for p in paths]
+    return [f"{p.parent.name}/{p.name}" if names.count(p.name) > 1 else p.name for p in paths]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("datasets", type=Path, nargs="+")
@@ -159,10 +166,10 @@ def main(argv: list[str] | None = None) -> int:
         cfg = SfMConfig.from_dict(yaml.safe_load(args.config.read_text()) or {}) if args.config else SfMConfig()
         model = DepthModel.load(args.weights, device=args.device)
         results = {}
-        for path in args.datasets:
+        for path, label in zip(args.datasets, dataset_labels(args.datasets)):
             seq = open_dataset(path)
             masters = pick_masters(len(seq), args.offsets, args.masters, args.span)
-            name = path.name if args.span is None else f"{path.name} [{args.span[0]}:{args.span[1]}]"
+            name = label if args.span is None else f"{label} [{args.span[0]}:{args.span[1]}]"
             per_master = []
             for m in masters:
                 r = master_rmse_by_count(model, seq, m, args.offsets, cfg)
