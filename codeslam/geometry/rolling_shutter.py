@@ -1,0 +1,76 @@
+"""Rolling-shutter rectification by a known rotation: an image (or keypoints) as a global shutter at mid-readout
+would have seen it.
+
+A rolling-shutter sensor exposes its rows one after the other. While the camera turns by ``omega`` (rotation
+vector in the camera frame) over the readout, row y is seen by the camera turned by ``s(y) omega`` about its own
+centre, ``s(y) = (y - (H - 1) / 2) / H`` in the *sensor's* rows (the convention of the SfM's readout rotation,
+:class:`codeslam.sfm.config.SfMConfig`). The camera's translation over the readout is neglected: at a few
+centimetres per frame and metres of depth it moves a pixel by a small fraction of what the rotation does.
+
+Why (measured, docs/results/slam_table.md, session of 2026-11-26): on TUM fr1/rpy the tracked rotation of a frame
+against its keyframe is off by 0.5-5 degrees, and that error follows the *difference* of the two frames' angular
+velocities (correlation +0.62 with the network's depth, +0.69 with the sensor's), not the rotation between them
+(+0.11, +0.16) nor the frame's own speed: the signature of two images distorted by their own readouts.
+
+The maths here is our own (a rotation-only row warp, first order in the readout rotation: the row time of the
+rectified pixel is used for the source pixel, which differs from the exact one by s' omega, a second-order term).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from codeslam.geometry.camera import PinholeCamera, pixel_grid
+from codeslam.geometry.image import pixels_to_grid
+from codeslam.geometry.lie import so3_exp
+
+
+def row_times(rays: torch.Tensor, sensor: PinholeCamera) -> torch.Tensor:
+    """(..., 3) camera rays (any scale, z > 0) -> (...) the readout time s of the sensor row each ray falls on,
+    ``s = (y - (H - 1) / 2) / H`` in [-1/2, 1/2] over the sensor's rows (y = fy ray_y / ray_z + cy)."""
+    y = sensor.fy * rays[..., 1] / rays[..., 2] + sensor.cy
+    return (y - 0.5 * (sensor.height - 1)) / sensor.height
+
+
+def _row_rotations(s: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
+    """(...) readout times, (3,) readout rotation -> (..., 3, 3) Exp(s omega)."""
+    phi = s.reshape(-1, 1) * omega.to(s.dtype).reshape(1, 3)
+    return so3_exp(phi).reshape(*s.shape, 3, 3)
+
+
+def rectify_points(uv: torch.Tensor, camera: PinholeCamera, sensor: PinholeCamera,
+                   omega: torch.Tensor) -> torch.Tensor:
+    """(N, 2) pixels of ``camera`` in a rolling-shutter image (rows read by ``sensor``) -> (N, 2) where a global
+    shutter at mid-readout would have seen the same scene points: ray r -> Exp(s(r) omega) r."""
+    K_inv_u = torch.stack([(uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy,
+                           torch.ones_like(uv[:, 0])], dim=-1)  # (N, 3)
+    R = _row_rotations(row_times(K_inv_u, sensor), omega)  # (N, 3, 3)
+    r = (R @ K_inv_u.unsqueeze(-1)).squeeze(-1)
+    return torch.stack([camera.fx * r[:, 0] / r[:, 2] + camera.cx, camera.fy * r[:, 1] / r[:, 2] + camera.cy], -1)
+
+
+def source_pixels(camera: PinholeCamera, sensor: PinholeCamera, omega: torch.Tensor,
+                  dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """(H, W, 2): for each pixel of the rectified (global-shutter) image of ``camera``, where the rolling-shutter
+    image shows its scene point: ray r' -> Exp(-s(r') omega) r' (first order: the row time of r' itself)."""
+    grid = pixel_grid(camera.height, camera.width, torch.float64)
+    rays = torch.stack([(grid[..., 0] - camera.cx) / camera.fx, (grid[..., 1] - camera.cy) / camera.fy,
+                        torch.ones_like(grid[..., 0])], dim=-1)  # (H, W, 3)
+    R = _row_rotations(-row_times(rays, sensor), omega.to(torch.float64))  # (H, W, 3, 3)
+    r = (R @ rays.unsqueeze(-1)).squeeze(-1)
+    return torch.stack([camera.fx * r[..., 0] / r[..., 2] + camera.cx,
+                        camera.fy * r[..., 1] / r[..., 2] + camera.cy], -1).to(dtype)
+
+
+def rectify_image(image: torch.Tensor, camera: PinholeCamera, sensor: PinholeCamera, omega: torch.Tensor,
+                  mode: str = "bilinear") -> tuple[torch.Tensor, torch.Tensor]:
+    """(C, H, W) rolling-shutter image of ``camera`` -> (the rectified image (C, H, W), (H, W) bool: pixels whose
+    source lies inside the image). Outside pixels are 0. ``mode``: 'bilinear' for intensities, 'nearest' for depth
+    and masks."""
+    uv = source_pixels(camera, sensor, omega, image.dtype if image.is_floating_point() else torch.float32)
+    H, W = image.shape[-2:]
+    inside = (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= H - 1)
+    grid = pixels_to_grid(uv[None], H, W)  # (1, H, W, 2)
+    out = F.grid_sample(image[None].to(grid.dtype), grid, mode=mode, padding_mode="zeros", align_corners=True)[0]
+    return out * inside.to(out.dtype), inside
