@@ -42,7 +42,8 @@ from codeslam.data.frame import Frame, resample_frame
 from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
-from codeslam.geometry.lie import se3_inverse
+from codeslam.geometry.lie import se3_inverse, so3_log
+from codeslam.geometry.rolling_shutter import rectify_image, rectify_points
 from codeslam.sfm.decoder import LinearDecoder
 from codeslam.sfm.keyframes import Keyframe
 from codeslam.slam.config import SLAMConfig
@@ -125,6 +126,20 @@ class _Views:
 
     frame: Frame
     features: Features | None
+
+
+def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Frame:
+    """``frame`` (in the network's camera) as a global shutter at mid-readout would have seen it; ``sensor``: the
+    input camera, whose rows were read out one after the other while the camera turned by ``readout``."""
+    image, inside = rectify_image(frame.image, frame.camera, sensor, readout)
+    depth = None
+    if frame.depth is not None:
+        depth = rectify_image(frame.depth[None], frame.camera, sensor, readout, mode="nearest")[0][0]
+    valid = inside
+    if frame.valid is not None:
+        valid = valid & (rectify_image(frame.valid[None].float(), frame.camera, sensor, readout,
+                                       mode="nearest")[0][0] > 0.5)
+    return dataclasses.replace(frame, image=image, depth=depth, valid=None if bool(valid.all()) else valid)
 
 
 class _StageTimer:
@@ -542,6 +557,10 @@ class CodeSLAM:
             self.camera = frame.camera
         with timer("resample"):
             net = resample_frame(frame, self.camera)
+        readout = self._readout_rotation()
+        if readout is not None:
+            with timer("resample"):
+                net = _rectified(net, frame.camera, readout)
         features = None
         if self.config.features.enabled:
             if self.sparse is None:
@@ -552,7 +571,23 @@ class CodeSLAM:
                                                     self.sparse.extract.orb.getScaleFactor())
             with timer("features"):
                 features = self.sparse.features_of(frame)
+                if features is not None and readout is not None and len(features) > 0:
+                    uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, frame.camera, readout)
+                    features = dataclasses.replace(features, uv=uv.numpy())
         return _Views(net, features)
+
+    def _readout_rotation(self) -> torch.Tensor | None:
+        """The camera's rotation over the sensor's readout (``tracker.rolling_shutter_readout`` times the motion
+        model's last inter-frame rotation, in the camera frame; float64 (3,)), or None for a global shutter or
+        before two frames were tracked."""
+        readout = self.config.tracker.rolling_shutter_readout
+        if readout <= 0:
+            return None
+        for prev, cur in zip(reversed(self._records[:-1]), reversed(self._records)):
+            if prev.ok and cur.ok:
+                T = se3_inverse(self._pose(prev)) @ self._pose(cur)  # T_prev^-1 T_cur: R_cur = R_prev Exp(omega)
+                return readout * so3_log(T[:3, :3].to(torch.float64))
+        return None
 
     def _make_keyframe(self, views: _Views, T_wc: torch.Tensor, kid: int, segment: int) -> MapKeyframe:
         """Decode the frame's depth model (the network's forward pass and code Jacobian, once per keyframe, Sec.

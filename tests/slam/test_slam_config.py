@@ -53,6 +53,7 @@ def test_resolved_config_round_trips_through_yaml(tmp_path):
         "dtype: float16\n",
         "- just\n- a list\n",
         "tracker: {min_overlap: 2}\n",
+        "tracker: {rolling_shutter_readout: 1.5}\n",  # more than the frame interval
         "{unbalanced\n",
     ],
 )

@@ -100,3 +100,29 @@ def test_bad_inputs_to_the_system_are_user_errors():
     assert bool(torch.isfinite(other.T_wc).all())
     with pytest.raises(CodeSLAMError, match="timestamp"):
         system.process(dataclasses.replace(frames[1], timestamp=frames[0].timestamp))
+
+
+def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rotation():
+    """tracker.rolling_shutter_readout: the frame the tracker sees is the input rectified by the readout times the
+    last inter-frame rotation (none before two frames are tracked), its keypoints likewise."""
+    from codeslam.geometry.lie import se3_inverse, so3_log
+    from codeslam.geometry.rolling_shutter import rectify_image
+    from codeslam.slam.system import _StageTimer
+
+    frames = synth_frames(3, 4, 7.5)
+    cfg = small_config(size=3)
+    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_readout=0.5))
+    system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
+    system.camera = frames[0].camera
+    assert system._readout_rotation() is None
+    for f in frames[:3]:
+        system.process(f)
+    T = se3_inverse(system._pose(system._records[-2])) @ system._pose(system._records[-1])
+    omega = system._readout_rotation()
+    assert torch.allclose(omega, 0.5 * so3_log(T[:3, :3]), atol=1e-12) and float(omega.norm()) > 1e-3
+    views = system._views(frames[3], _StageTimer(torch.device("cpu")))
+    expected, _ = rectify_image(frames[3].image, frames[3].camera, frames[3].camera, omega)
+    assert torch.allclose(views.frame.image, expected, atol=1e-6)
+    plain = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
+    plain.camera = frames[0].camera
+    assert torch.equal(plain._views(frames[3], _StageTimer(torch.device("cpu"))).frame.image, frames[3].image)
