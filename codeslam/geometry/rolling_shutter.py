@@ -53,24 +53,23 @@ def rectify_points(uv: torch.Tensor, camera: PinholeCamera, sensor: PinholeCamer
 def source_pixels(camera: PinholeCamera, sensor: PinholeCamera, omega: torch.Tensor,
                   dtype: torch.dtype = torch.float32) -> torch.Tensor:
     """(H, W, 2): for each pixel of the rectified (global-shutter) image of ``camera``, where the rolling-shutter
-    image shows its scene point: ray r' -> Exp(-s(r') omega) r' (first order: the row time of r' itself)."""
+    image shows its scene point: ray r' -> Exp(-s(r') omega) r' (first order: the row time of r' itself). The rays
+    of one pixel row share their sensor row (same optical axes), so one rotation per row."""
     grid = pixel_grid(camera.height, camera.width, torch.float64)
     rays = torch.stack([(grid[..., 0] - camera.cx) / camera.fx, (grid[..., 1] - camera.cy) / camera.fy,
                         torch.ones_like(grid[..., 0])], dim=-1)  # (H, W, 3)
-    R = _row_rotations(-row_times(rays, sensor), omega.to(torch.float64))  # (H, W, 3, 3)
-    r = (R @ rays.unsqueeze(-1)).squeeze(-1)
+    R = _row_rotations(-row_times(rays[:, 0], sensor), omega.to(torch.float64))  # (H, 3, 3)
+    r = rays @ R.transpose(-1, -2)  # (H, W, 3): R_row r' for every pixel of the row
     return torch.stack([camera.fx * r[..., 0] / r[..., 2] + camera.cx,
                         camera.fy * r[..., 1] / r[..., 2] + camera.cy], -1).to(dtype)
 
 
-def rectify_image(image: torch.Tensor, camera: PinholeCamera, sensor: PinholeCamera, omega: torch.Tensor,
-                  mode: str = "bilinear") -> tuple[torch.Tensor, torch.Tensor]:
-    """(C, H, W) rolling-shutter image of ``camera`` -> (the rectified image (C, H, W), (H, W) bool: pixels whose
-    source lies inside the image). Outside pixels are 0. ``mode``: 'bilinear' for intensities, 'nearest' for depth
-    and masks."""
-    uv = source_pixels(camera, sensor, omega, image.dtype if image.is_floating_point() else torch.float32)
+def rectify_image(image: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear") -> tuple[torch.Tensor, torch.Tensor]:
+    """(C, H, W) rolling-shutter image, ``uv`` (H, W, 2) from :func:`source_pixels` -> (the rectified image
+    (C, H, W), (H, W) bool: pixels whose source lies inside the image). Outside pixels are 0. ``mode``:
+    'bilinear' for intensities, 'nearest' for depth and masks."""
     H, W = image.shape[-2:]
     inside = (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= H - 1)
-    grid = pixels_to_grid(uv[None], H, W)  # (1, H, W, 2)
-    out = F.grid_sample(image[None].to(grid.dtype), grid, mode=mode, padding_mode="zeros", align_corners=True)[0]
+    grid = pixels_to_grid(uv[None].to(torch.float32), H, W)  # (1, H, W, 2)
+    out = F.grid_sample(image[None].to(torch.float32), grid, mode=mode, padding_mode="zeros", align_corners=True)[0]
     return out * inside.to(out.dtype), inside

@@ -43,7 +43,7 @@ from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.lie import se3_inverse, so3_log
-from codeslam.geometry.rolling_shutter import rectify_image, rectify_points
+from codeslam.geometry.rolling_shutter import rectify_image, rectify_points, source_pixels
 from codeslam.sfm.decoder import LinearDecoder
 from codeslam.sfm.keyframes import Keyframe
 from codeslam.slam.config import SLAMConfig
@@ -131,14 +131,12 @@ class _Views:
 def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Frame:
     """``frame`` (in the network's camera) as a global shutter at mid-readout would have seen it; ``sensor``: the
     input camera, whose rows were read out one after the other while the camera turned by ``readout``."""
-    image, inside = rectify_image(frame.image, frame.camera, sensor, readout)
-    depth = None
-    if frame.depth is not None:
-        depth = rectify_image(frame.depth[None], frame.camera, sensor, readout, mode="nearest")[0][0]
+    uv = source_pixels(frame.camera, sensor, readout)
+    image, inside = rectify_image(frame.image, uv)
+    depth = None if frame.depth is None else rectify_image(frame.depth[None], uv, mode="nearest")[0][0]
     valid = inside
     if frame.valid is not None:
-        valid = valid & (rectify_image(frame.valid[None].float(), frame.camera, sensor, readout,
-                                       mode="nearest")[0][0] > 0.5)
+        valid = valid & (rectify_image(frame.valid[None].float(), uv, mode="nearest")[0][0] > 0.5)
     return dataclasses.replace(frame, image=image, depth=depth, valid=None if bool(valid.all()) else valid)
 
 

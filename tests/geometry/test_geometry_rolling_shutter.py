@@ -8,7 +8,7 @@ import torch
 
 from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.lie import so3_exp
-from codeslam.geometry.rolling_shutter import rectify_image, rectify_points, row_times
+from codeslam.geometry.rolling_shutter import rectify_image, rectify_points, row_times, source_pixels
 
 OMEGA = torch.tensor([0.03, -0.06, 0.02], dtype=torch.float64)  # about 4 degrees over the readout
 
@@ -58,12 +58,12 @@ def test_rectified_image_matches_the_global_shutter_image():
     cam = canonical_camera(128, 96)
     rs = _render(cam, OMEGA).float()
     gs = _render(cam, torch.zeros(3, dtype=torch.float64)).float()
-    out, inside = rectify_image(rs[None], cam, cam, OMEGA)
+    out, inside = rectify_image(rs[None], source_pixels(cam, cam, OMEGA))
     inner = inside.clone()
     inner[:4], inner[-4:], inner[:, :4], inner[:, -4:] = False, False, False, False
     before = (rs - gs).abs()[inner].mean()
     after = (out[0] - gs).abs()[inner].mean()
     assert before > 0.01  # the readout moves the image by a few pixels (0.021 here)
     assert after < 0.1 * before
-    same, all_inside = rectify_image(rs[None], cam, cam, torch.zeros(3))
+    same, all_inside = rectify_image(rs[None], source_pixels(cam, cam, torch.zeros(3)))
     assert torch.allclose(same, rs[None], atol=1e-5) and bool(all_inside.all())

@@ -106,7 +106,7 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     """tracker.rolling_shutter_readout: the frame the tracker sees is the input rectified by the readout times the
     last inter-frame rotation (none before two frames are tracked), its keypoints likewise."""
     from codeslam.geometry.lie import se3_inverse, so3_log
-    from codeslam.geometry.rolling_shutter import rectify_image
+    from codeslam.geometry.rolling_shutter import rectify_image, source_pixels
     from codeslam.slam.system import _StageTimer
 
     frames = synth_frames(3, 4, 7.5)
@@ -121,7 +121,7 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     omega = system._readout_rotation()
     assert torch.allclose(omega, 0.5 * so3_log(T[:3, :3]), atol=1e-12) and float(omega.norm()) > 1e-3
     views = system._views(frames[3], _StageTimer(torch.device("cpu")))
-    expected, _ = rectify_image(frames[3].image, frames[3].camera, frames[3].camera, omega)
+    expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera, omega))
     assert torch.allclose(views.frame.image, expected, atol=1e-6)
     plain = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
     plain.camera = frames[0].camera
