@@ -69,7 +69,9 @@ def rectify_image(image: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear")
     (C, H, W), (H, W) bool: pixels whose source lies inside the image). Outside pixels are 0. ``mode``:
     'bilinear' for intensities, 'nearest' for depth and masks."""
     H, W = image.shape[-2:]
+    x = image[None] if image.is_floating_point() else image[None].float()
+    uv = uv.to(x.device, x.dtype)
     inside = (uv[..., 0] >= 0) & (uv[..., 0] <= W - 1) & (uv[..., 1] >= 0) & (uv[..., 1] <= H - 1)
-    grid = pixels_to_grid(uv[None].to(torch.float32), H, W)  # (1, H, W, 2)
-    out = F.grid_sample(image[None].to(torch.float32), grid, mode=mode, padding_mode="zeros", align_corners=True)[0]
+    grid = pixels_to_grid(uv[None], H, W)  # (1, H, W, 2)
+    out = F.grid_sample(x, grid, mode=mode, padding_mode="zeros", align_corners=True)[0]
     return out * inside.to(out.dtype), inside

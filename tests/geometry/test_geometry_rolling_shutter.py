@@ -67,3 +67,13 @@ def test_rectified_image_matches_the_global_shutter_image():
     assert after < 0.1 * before
     same, all_inside = rectify_image(rs[None], source_pixels(cam, cam, torch.zeros(3)))
     assert torch.allclose(same, rs[None], atol=1e-5) and bool(all_inside.all())
+
+
+def test_rectification_keeps_the_images_dtype():
+    cam = canonical_camera(32, 24)
+    uv = source_pixels(cam, cam, OMEGA)
+    for dtype in (torch.float32, torch.float64):
+        out, inside = rectify_image(torch.rand(2, 24, 32, dtype=dtype), uv)
+        assert out.dtype == dtype and out.shape == (2, 24, 32) and inside.shape == (24, 32)
+    mask, _ = rectify_image(torch.ones(1, 24, 32, dtype=torch.bool), uv, mode="nearest")
+    assert mask.dtype == torch.float32
