@@ -68,11 +68,12 @@ class TrackerConfig:
     """The sensor's readout time as a fraction of the frame interval (0: a global shutter). Above 0 every frame is
     rectified to a global shutter at mid-readout before tracking (:mod:`codeslam.geometry.rolling_shutter`), with
     the angular velocity of the motion model (the last inter-frame rotation): its image, depth and mask, and its
-    keypoints; keyframes are made from the rectified frames. Off by default: the readout is a property of the
+    keypoints. A frame that becomes a keyframe is rectified again with the rotation from the last frame to its
+    tracked pose (one frame more recent than the guess). Off by default: the readout is a property of the
     camera that the datasets do not carry, and elsewhere it does harm (at 0.5: the generator's global-shutter
     walk 0.061 -> 0.128 m, the HoloLens walk 0.139 -> 0.514 m). TUM RGB-D's Kinect: 0.5 (fr1/rpy, 1 thread,
-    three start frames: orientation 1.7-6.4 -> 1.4-1.7 deg, ATE 0.026-0.040 -> 0.019-0.028 m; with the sensor's
-    depth 1.6-3.3 -> 1.1-1.2 deg; 0.3, 0.7 and 0.9 worse; docs/results/slam_table.md, session of 2026-11-26)."""
+    three start frames: orientation 1.7-6.4 -> 1.35-1.50 deg, ATE 0.026-0.040 -> 0.016-0.017 m; with the sensor's
+    depth 1.6 / 3.3 -> 1.4 / 1.2 deg; 0.3, 0.7 and 0.9 worse; docs/results/slam_table.md, session of 2026-11-26)."""
 
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)

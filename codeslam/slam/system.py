@@ -126,6 +126,7 @@ class _Views:
 
     frame: Frame
     features: Features | None
+    raw: tuple | None = None  # with a rolling-shutter readout: (unrectified frame, its keypoints, input camera)
 
 
 def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Frame:
@@ -325,7 +326,8 @@ class CodeSLAM:
             return self._record(views.frame, ref, track.T_kf, True, timer, **kw)
         T_wc = ref.T_wc @ track.T_kf
         kid, segment = self._new_id(), self.segment
-        job = MappingJob(lambda: self._make_keyframe(views, T_wc, kid, segment), ref, sparse, len(self._records))
+        kviews = self._rerectified(views, T_wc)
+        job = MappingJob(lambda: self._make_keyframe(kviews, T_wc, kid, segment), ref, sparse, len(self._records))
         result = self._record(views.frame, ref, track.T_kf, True, timer, **kw)  # re-expressed once mapped
         done = self.mapper.insert(job)  # Sec. 4.3: decode, marginalise, optimise the window
         if done is not None:
@@ -556,6 +558,7 @@ class CodeSLAM:
         with timer("resample"):
             net = resample_frame(frame, self.camera)
         readout = self._readout_rotation()
+        raw_net = net
         if readout is not None:
             with timer("resample"):
                 net = _rectified(net, frame.camera, readout)
@@ -569,10 +572,25 @@ class CodeSLAM:
                                                     self.sparse.extract.orb.getScaleFactor())
             with timer("features"):
                 features = self.sparse.features_of(frame)
-                if features is not None and readout is not None and len(features) > 0:
-                    uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, frame.camera, readout)
-                    features = dataclasses.replace(features, uv=uv.numpy())
-        return _Views(net, features)
+        raw = (raw_net, features, frame.camera) if self.config.tracker.rolling_shutter_readout > 0 else None
+        if features is not None and readout is not None and len(features) > 0:
+            uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, frame.camera, readout)
+            features = dataclasses.replace(features, uv=uv.numpy())
+        return _Views(net, features, raw)
+
+    def _rerectified(self, views: _Views, T_wc: torch.Tensor) -> _Views:
+        """A new keyframe's views rectified again with the rotation from the last frame to this one (tracked),
+        instead of the one frame older motion-model guess."""
+        if views.raw is None or not self._records:
+            return views
+        raw_net, raw_features, sensor = views.raw
+        T = se3_inverse(self._pose(self._records[-1])) @ T_wc
+        omega = self.config.tracker.rolling_shutter_readout * so3_log(T[:3, :3].to(torch.float64))
+        features = raw_features
+        if features is not None and len(features) > 0:
+            uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, sensor, omega)
+            features = dataclasses.replace(features, uv=uv.numpy())
+        return _Views(_rectified(raw_net, sensor, omega), features, views.raw)
 
     def _readout_rotation(self) -> torch.Tensor | None:
         """The camera's rotation over the sensor's readout (``tracker.rolling_shutter_readout`` times the motion

@@ -104,8 +104,9 @@ def test_bad_inputs_to_the_system_are_user_errors():
 
 def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rotation():
     """tracker.rolling_shutter_readout: the frame the tracker sees is the input rectified by the readout times the
-    last inter-frame rotation (none before two frames are tracked), its keypoints likewise."""
-    from codeslam.geometry.lie import se3_inverse, so3_log
+    last inter-frame rotation (none before two frames are tracked), its keypoints likewise; a frame that becomes a
+    keyframe is rectified again with the rotation from the last frame to its tracked pose."""
+    from codeslam.geometry.lie import se3_exp, se3_inverse, so3_log
     from codeslam.geometry.rolling_shutter import rectify_image, source_pixels
     from codeslam.slam.system import _StageTimer
 
@@ -123,6 +124,13 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     views = system._views(frames[3], _StageTimer(torch.device("cpu")))
     expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera, omega))
     assert torch.allclose(views.frame.image, expected, atol=1e-6)
+    # a new keyframe is rectified again with the rotation from the last frame to its tracked pose
+    T_wc = system._pose(system._records[-1]) @ se3_exp(torch.tensor([0.0, 0.0, 0.01, 0.0, 0.02, 0.0],
+                                                                    dtype=torch.float64))
+    kviews = system._rerectified(views, T_wc)
+    expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera,
+                                                               0.5 * torch.tensor([0.0, 0.02, 0.0])))
+    assert torch.allclose(kviews.frame.image, expected, atol=1e-5)
     plain = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
     plain.camera = frames[0].camera
     assert torch.equal(plain._views(frames[3], _StageTimer(torch.device("cpu"))).frame.image, frames[3].image)
