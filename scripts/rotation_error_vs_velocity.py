@@ -28,25 +28,18 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from codeslam.data.trajectory import read_tum
 from codeslam.errors import CodeSLAMError
 from codeslam.eval.metrics import rotation_angle
-
-
-def _log_rotation(R: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation -> its axis times angle (radians)."""
-    angle = float(rotation_angle(R[None])[0])
-    if angle < 1e-9:
-        return np.zeros(3)
-    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / (2 * np.sin(angle))
-    return axis * angle
+from codeslam.geometry.lie import so3_log
 
 
 def angular_velocity(Q: np.ndarray, i: int) -> np.ndarray:
     """Ground-truth angular velocity of frame i in its camera frame, degrees per frame (central difference)."""
     i0, i1 = max(i - 1, 0), min(i + 1, len(Q) - 1)
-    return np.degrees(_log_rotation((np.linalg.inv(Q[i0]) @ Q[i1])[:3, :3])) / max(i1 - i0, 1)
+    return np.degrees(so3_log(torch.from_numpy((np.linalg.inv(Q[i0]) @ Q[i1])[:3, :3])).numpy()) / max(i1 - i0, 1)
 
 
 def analyse(run: Path) -> dict[str, np.ndarray]:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-from codeslam.geometry.camera import PinholeCamera, pixel_grid
+from codeslam.geometry.camera import PinholeCamera, pixel_grid, project, unproject_jac_depth
 from codeslam.geometry.image import pixels_to_grid
 from codeslam.geometry.lie import so3_exp
 
@@ -43,11 +43,10 @@ def rectify_points(uv: torch.Tensor, camera: PinholeCamera, sensor: PinholeCamer
                    omega: torch.Tensor) -> torch.Tensor:
     """(N, 2) pixels of ``camera`` in a rolling-shutter image (rows read by ``sensor``) -> (N, 2) where a global
     shutter at mid-readout would have seen the same scene points: ray r -> Exp(s(r) omega) r."""
-    K_inv_u = torch.stack([(uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy,
-                           torch.ones_like(uv[:, 0])], dim=-1)  # (N, 3)
-    R = _row_rotations(row_times(K_inv_u, sensor), omega)  # (N, 3, 3)
-    r = (R @ K_inv_u.unsqueeze(-1)).squeeze(-1)
-    return torch.stack([camera.fx * r[:, 0] / r[:, 2] + camera.cx, camera.fy * r[:, 1] / r[:, 2] + camera.cy], -1)
+    params = camera.params(uv.dtype, uv.device)
+    rays = unproject_jac_depth(uv, params)  # (N, 3)
+    R = _row_rotations(row_times(rays, sensor), omega)  # (N, 3, 3)
+    return project((R @ rays.unsqueeze(-1)).squeeze(-1), params)
 
 
 def source_pixels(camera: PinholeCamera, sensor: PinholeCamera, omega: torch.Tensor,
@@ -55,13 +54,10 @@ def source_pixels(camera: PinholeCamera, sensor: PinholeCamera, omega: torch.Ten
     """(H, W, 2): for each pixel of the rectified (global-shutter) image of ``camera``, where the rolling-shutter
     image shows its scene point: ray r' -> Exp(-s(r') omega) r' (first order: the row time of r' itself). The rays
     of one pixel row share their sensor row (same optical axes), so one rotation per row."""
-    grid = pixel_grid(camera.height, camera.width, torch.float64)
-    rays = torch.stack([(grid[..., 0] - camera.cx) / camera.fx, (grid[..., 1] - camera.cy) / camera.fy,
-                        torch.ones_like(grid[..., 0])], dim=-1)  # (H, W, 3)
+    params = camera.params(torch.float64)
+    rays = unproject_jac_depth(pixel_grid(camera.height, camera.width, torch.float64), params)  # (H, W, 3)
     R = _row_rotations(-row_times(rays[:, 0], sensor), omega.to(torch.float64))  # (H, 3, 3)
-    r = rays @ R.transpose(-1, -2)  # (H, W, 3): R_row r' for every pixel of the row
-    return torch.stack([camera.fx * r[..., 0] / r[..., 2] + camera.cx,
-                        camera.fy * r[..., 1] / r[..., 2] + camera.cy], -1).to(dtype)
+    return project(rays @ R.transpose(-1, -2), params).to(dtype)  # R_row r' for every pixel of the row
 
 
 def rectify_image(image: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear") -> tuple[torch.Tensor, torch.Tensor]:

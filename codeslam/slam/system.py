@@ -126,7 +126,8 @@ class _Views:
 
     frame: Frame
     features: Features | None
-    raw: tuple | None = None  # with a rolling-shutter readout: (unrectified frame, its keypoints, input camera)
+    raw: tuple[Frame, Features | None, PinholeCamera] | None = None  # with a rolling-shutter readout: the
+    # unrectified frame and keypoints, and the input camera whose rows were read out
 
 
 def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Frame:
@@ -557,11 +558,6 @@ class CodeSLAM:
             self.camera = frame.camera
         with timer("resample"):
             net = resample_frame(frame, self.camera)
-        readout = self._readout_rotation()
-        raw_net = net
-        if readout is not None:
-            with timer("resample"):
-                net = _rectified(net, frame.camera, readout)
         features = None
         if self.config.features.enabled:
             if self.sparse is None:
@@ -572,38 +568,38 @@ class CodeSLAM:
                                                     self.sparse.extract.orb.getScaleFactor())
             with timer("features"):
                 features = self.sparse.features_of(frame)
-        raw = (raw_net, features, frame.camera) if self.config.tracker.rolling_shutter_readout > 0 else None
-        if features is not None and readout is not None and len(features) > 0:
-            uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, frame.camera, readout)
-            features = dataclasses.replace(features, uv=uv.numpy())
-        return _Views(net, features, raw)
+        if self.config.tracker.rolling_shutter_readout <= 0:
+            return _Views(net, features)
+        with timer("resample"):
+            return self._rectified_views((net, features, frame.camera), self._readout_rotation(self._last_motion()))
 
     def _rerectified(self, views: _Views, T_wc: torch.Tensor) -> _Views:
         """A new keyframe's views rectified again with the rotation from the last frame to this one (tracked),
         instead of the one frame older motion-model guess."""
         if views.raw is None or not self._records:
             return views
-        raw_net, raw_features, sensor = views.raw
-        T = se3_inverse(self._pose(self._records[-1])) @ T_wc
-        omega = self.config.tracker.rolling_shutter_readout * so3_log(T[:3, :3].to(torch.float64))
-        features = raw_features
-        if features is not None and len(features) > 0:
-            uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, sensor, omega)
-            features = dataclasses.replace(features, uv=uv.numpy())
-        return _Views(_rectified(raw_net, sensor, omega), features, views.raw)
+        return self._rectified_views(views.raw,
+                                     self._readout_rotation(se3_inverse(self._pose(self._records[-1])) @ T_wc))
 
-    def _readout_rotation(self) -> torch.Tensor | None:
-        """The camera's rotation over the sensor's readout (``tracker.rolling_shutter_readout`` times the motion
-        model's last inter-frame rotation, in the camera frame; float64 (3,)), or None for a global shutter or
-        before two frames were tracked."""
-        readout = self.config.tracker.rolling_shutter_readout
-        if readout <= 0:
+    def _readout_rotation(self, motion: torch.Tensor | None) -> torch.Tensor | None:
+        """The camera's rotation over the sensor's readout: ``tracker.rolling_shutter_readout`` times the rotation
+        of ``motion`` (``T_prev^-1 T_cur``, so R_cur = R_prev Exp(omega): in the camera frame); float64 (3,), or
+        None without a motion."""
+        if motion is None:
             return None
-        for prev, cur in zip(reversed(self._records[:-1]), reversed(self._records)):
-            if prev.ok and cur.ok:
-                T = se3_inverse(self._pose(prev)) @ self._pose(cur)  # T_prev^-1 T_cur: R_cur = R_prev Exp(omega)
-                return readout * so3_log(T[:3, :3].to(torch.float64))
-        return None
+        return self.config.tracker.rolling_shutter_readout * so3_log(motion[:3, :3].to(torch.float64))
+
+    def _rectified_views(self, raw: tuple[Frame, Features | None, PinholeCamera],
+                         readout: torch.Tensor | None) -> _Views:
+        """The views of ``raw`` (the frame in the network's camera, its keypoints, the input camera whose rows were
+        read out) rectified by the readout rotation ``readout`` (as they are for None); they keep ``raw``."""
+        net, features, sensor = raw
+        if readout is None:
+            return _Views(net, features, raw)
+        if features is not None and len(features) > 0:
+            uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, sensor, readout)
+            features = dataclasses.replace(features, uv=uv.numpy())
+        return _Views(_rectified(net, sensor, readout), features, raw)
 
     def _make_keyframe(self, views: _Views, T_wc: torch.Tensor, kid: int, segment: int) -> MapKeyframe:
         """Decode the frame's depth model (the network's forward pass and code Jacobian, once per keyframe, Sec.
@@ -643,14 +639,19 @@ class CodeSLAM:
         """The frame's pose in ``ref`` predicted by the motion model: the last pose moved by the last inter-frame
         motion between two successfully tracked frames (constant velocity; a failed frame's guessed pose never
         feeds the velocity, so guesses cannot compound), or the last pose ('static')."""
-        T_last = self._pose(self._records[-1])
-        T_pred = T_last
-        if self.config.tracker.motion_model == "constant_velocity":
-            for prev, cur in zip(reversed(self._records[:-1]), reversed(self._records)):
-                if prev.ok and cur.ok:
-                    T_pred = T_last @ (se3_inverse(self._pose(prev)) @ self._pose(cur))  # T_prev^-1 T_cur
-                    break
+        T_pred = self._pose(self._records[-1])
+        motion = self._last_motion() if self.config.tracker.motion_model == "constant_velocity" else None
+        if motion is not None:
+            T_pred = T_pred @ motion
         return se3_inverse(ref.T_wc) @ T_pred
+
+    def _last_motion(self) -> torch.Tensor | None:
+        """``T_prev^-1 T_cur`` of the last two successfully tracked consecutive frames (None before there are two):
+        the motion model's velocity."""
+        for prev, cur in zip(reversed(self._records[:-1]), reversed(self._records)):
+            if prev.ok and cur.ok:
+                return se3_inverse(self._pose(prev)) @ self._pose(cur)
+        return None
 
     def _affine_guess(self, ref: MapKeyframe) -> torch.Tensor | None:
         last = self._records[-1]

@@ -115,11 +115,11 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_readout=0.5))
     system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
     system.camera = frames[0].camera
-    assert system._readout_rotation() is None
+    assert system._last_motion() is None and system._readout_rotation(system._last_motion()) is None
     for f in frames[:3]:
         system.process(f)
     T = se3_inverse(system._pose(system._records[-2])) @ system._pose(system._records[-1])
-    omega = system._readout_rotation()
+    omega = system._readout_rotation(system._last_motion())
     assert torch.allclose(omega, 0.5 * so3_log(T[:3, :3]), atol=1e-12) and float(omega.norm()) > 1e-3
     views = system._views(frames[3], _StageTimer(torch.device("cpu")))
     expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera, omega))
