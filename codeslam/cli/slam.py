@@ -239,6 +239,12 @@ def _print_summary(s: dict, out: Path) -> None:
     ]
     if "camera" in s:  # a video: the calibration file, or the field-of-view guess
         rows.append(("camera", str(s["camera"])))
+    rs = s.get("rolling_shutter")
+    if isinstance(rs, dict):  # tracker.rolling_shutter_estimate
+        rows.append(("rolling shutter", "readout not decided (too few turning frames)" if rs["readout"] is None else
+                     f"readout {rs['readout']:.2f} of the frame interval (chosen at frame {rs['decided_at_frame']} "
+                     f"from {rs['frames']} turning frames)" if rs["readout"] > 0 else
+                     f"global shutter (chosen at frame {rs['decided_at_frame']} from {rs['frames']} turning frames)"))
     if "ate_se3_rmse" in s:
         rows += [
             ("ATE SE(3)", f"{s['ate_se3_rmse']:.4f} m"),

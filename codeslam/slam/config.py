@@ -65,16 +65,26 @@ class TrackerConfig:
     """Tracking fails when the brightness gain leaves exp(+-0.7) = [0.5, 2]: no camera's exposure changes that
     much between frames; an unrelated image is often "explained" by a gain near 0."""
     rolling_shutter_readout: float = 0.0
-    """The sensor's readout time as a fraction of the frame interval (0: a global shutter). Above 0 every frame is
-    rectified to a global shutter at mid-readout before tracking (:mod:`codeslam.geometry.rolling_shutter`), with
-    the angular velocity of the motion model (the last inter-frame rotation): its image, depth and mask, and its
-    keypoints. A frame that becomes a keyframe is rectified again with the rotation from the last frame to its
-    tracked pose (one frame more recent than the guess). Off by default: the readout is a property of the
-    camera that the datasets do not carry, and elsewhere it does harm (at 0.5: the generator's global-shutter
-    walk 0.061 -> 0.128 m, the HoloLens walk 0.139 -> 0.514 m). TUM RGB-D's Kinect: 0.5 (fr1/rpy, 1 thread,
-    three start frames: orientation 1.7-6.4 -> 1.35-1.50 deg, ATE 0.026-0.040 -> 0.016-0.017 m; with the sensor's
-    depth 1.6 / 3.3 -> 1.4 / 1.2 deg; 0.3, 0.7 and 0.9 worse; docs/results/slam_table.md, session of 2026-11-26)."""
-
+    """With ``rolling_shutter_estimate`` false: the sensor's readout time as a fraction of the frame interval (0: a
+    global shutter). Above 0 every frame is rectified to a global shutter at mid-readout before tracking
+    (:mod:`codeslam.geometry.rolling_shutter`), with the angular velocity of the motion model (the last
+    inter-frame rotation): its image, depth and mask, and its keypoints. A frame that becomes a keyframe is
+    rectified again with the rotation from the last frame to its tracked pose (one frame more recent than the
+    guess). A readout set by hand does harm where the camera has none (at 0.5: the generator's global-shutter walk
+    0.061 -> 0.128 m, the HoloLens walk 0.139 -> 0.514 m); TUM RGB-D's Kinect: 0.5 (fr1/rpy, 1 thread, three
+    start frames: orientation 1.7-6.4 -> 1.35-1.50 deg, ATE 0.026-0.040 -> 0.016-0.017 m; 0.3, 0.7 and 0.9 worse;
+    docs/results/slam_table.md, session of 2026-11-26)."""
+    rolling_shutter_estimate: bool = True
+    """Choose the readout online (:mod:`codeslam.slam.readout`; ``rolling_shutter_readout`` is then not used):
+    the first frames that turn against their keyframe are aligned again with their image rectified under each
+    candidate readout, and the one that explains them best is taken (provisionally after 10 such frames, finally
+    after 40; a global shutter when no candidate does clearly better). The datasets carry no readout, and a
+    camera's own video rarely states one. Measured (1 thread, one run each, docs/results/slam_table.md, session of
+    2026-11-26, second): TUM fr1/rpy chooses 0.59 (0.75 from start frames 5-15 and with the sensor's depth), the
+    HoloLens and generator walks a global shutter (their trajectories unchanged to the last digit); TUM from
+    frames 0 / 5 / 10 / 15: 1.71 / 6.37 / 3.35 / 2.82 deg -> 1.42 / 1.53 / 1.15 / 2.94 deg (a hand-set 0.5: 1.38 /
+    1.35 / 1.50 / 1.68). Costs about 10 ms per frame over TUM's first 50 frames (four alignments at the finest
+    level per informative frame), nothing after."""
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)
         if not 0.0 <= self.rolling_shutter_readout <= 1.0:

@@ -37,7 +37,7 @@ from codeslam.slam.window import MapKeyframe
 from codeslam.viz import Visualizer
 
 #: The system's stages, in the order :attr:`FrameResult.timings_ms` reports them, plus the runner's own.
-STAGES = ("read", "resample", "features", "track", "relocalise", "decode", "marginalise", "window")
+STAGES = ("read", "resample", "features", "track", "relocalise", "readout", "decode", "marginalise", "window")
 
 
 @dataclass
@@ -51,6 +51,7 @@ class SLAMRun:
         camera: the camera the system ran in.
         timings_ms: total wall time per stage (:data:`STAGES`) over the run.
         process_s: wall time inside the system; wall_s: of the whole loop (reading and resampling included).
+        readout: the online choice of the rolling-shutter readout and its evidence (None: not estimated).
     """
 
     results: list[FrameResult]
@@ -61,6 +62,7 @@ class SLAMRun:
     timings_ms: dict[str, float] = field(default_factory=dict)
     process_s: float = 0.0
     wall_s: float = 0.0
+    readout: dict | None = None
 
     @property
     def fps(self) -> float:
@@ -114,7 +116,7 @@ def run_slam(
     return SLAMRun(
         results=results, trajectory=system.trajectory(), keyframe_trajectory=system.keyframe_trajectory(),
         keyframes=list(system.keyframes), camera=camera, timings_ms=totals, process_s=process_s,
-        wall_s=time.perf_counter() - t_start,
+        wall_s=time.perf_counter() - t_start, readout=system.readout_summary(),
     )
 
 
@@ -159,6 +161,8 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
         "window_rollbacks": sum(bool(r.window is not None and r.window.rejected) or bool(r.rolled_back)
                                 for r in res),
     }
+    if run.readout is not None:
+        out["rolling_shutter"] = run.readout
     if evaluation is not None:
         out.update(evaluation)
     out.update(extra)

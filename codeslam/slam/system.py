@@ -30,6 +30,7 @@ results belong to :mod:`codeslam.slam.pipeline`.
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -52,6 +53,7 @@ from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, 
 from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult
 from codeslam.slam.poses import project_to_se3
+from codeslam.slam.readout import CANDIDATES, ReadoutChoice
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
 from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport
 
@@ -219,6 +221,14 @@ class CodeSLAM:
         self._lost = 0  # consecutive frames whose pose is only predicted
         self._undo: MappingResult | None = None  # the last window solve, to undo it (sequential mode)
         self._next_id = 0
+        tcfg = config.tracker
+        self.readout = 0.0 if tcfg.rolling_shutter_estimate else tcfg.rolling_shutter_readout
+        self.readout_choice = ReadoutChoice() if tcfg.rolling_shutter_estimate else None
+        # Its alignments start at the tracked pose and move it by a pixel at most: the finest level alone
+        self._readout_tracker = PhotometricTracker(
+            dataclasses.replace(tcfg, pyramid_levels=tcfg.pyramid_levels[-1:], max_iterations=(8,)), config.window.sfm)
+        self._turn: dict[int, tuple[torch.Tensor, float]] = {}  # estimating: keyframe id -> (its turn from the
+        # frame before it, the readout it was rectified with)
 
     @property
     def window(self) -> SlidingWindow:
@@ -322,11 +332,22 @@ class CodeSLAM:
             else:
                 decision = dataclasses.replace(decision, add=False, reason="mapping busy")
         kw = dict(track=track, decision=decision, status=status, source=source, rolled_back=rolled_back)
+        turn = self._turn_since_last(ref.T_wc @ track.T_kf) if self.readout_choice is not None else None
+        first_after = self._keyframe_record.get(ref.id) == len(self._records) - 1
+        if turn is not None and ref.id not in self._turn and first_after:
+            # a keyframe without a frame before it (the first): its turn to the next one, not rectified
+            self._turn[ref.id] = (turn, 0.0)
+        if turn is not None and ref.id in self._turn:  # estimating the readout: the frame against its keyframe
+            if self.readout_choice.informative(turn - self._turn[ref.id][0]):
+                with timer("readout"):
+                    self._weigh_readouts(views, ref, track, turn, *self._turn[ref.id])
         if not decision.add:
             self._last_tracked = (views, ref, sparse, len(self._records))
             return self._record(views.frame, ref, track.T_kf, True, timer, **kw)
         T_wc = ref.T_wc @ track.T_kf
         kid, segment = self._new_id(), self.segment
+        if turn is not None:
+            self._turn[kid] = (turn, self.readout)  # _rerectified rectifies it by this readout times this turn
         kviews = self._rerectified(views, T_wc)
         job = MappingJob(lambda: self._make_keyframe(kviews, T_wc, kid, segment), ref, sparse, len(self._records))
         result = self._record(views.frame, ref, track.T_kf, True, timer, **kw)  # re-expressed once mapped
@@ -568,26 +589,57 @@ class CodeSLAM:
                                                     self.sparse.extract.orb.getScaleFactor())
             with timer("features"):
                 features = self.sparse.features_of(frame)
-        if self.config.tracker.rolling_shutter_readout <= 0:
-            return _Views(net, features)
+        raw = (net, features, frame.camera)
+        if self.readout <= 0:
+            return _Views(net, features, raw)
         with timer("resample"):
-            return self._rectified_views((net, features, frame.camera), self._readout_rotation(self._last_motion()))
+            return self._rectified_views(raw, self._readout_rotation(self._last_motion()))
 
     def _rerectified(self, views: _Views, T_wc: torch.Tensor) -> _Views:
         """A new keyframe's views rectified again with the rotation from the last frame to this one (tracked),
         instead of the one frame older motion-model guess."""
-        if views.raw is None or not self._records:
+        if self.readout <= 0 or views.raw is None or not self._records:
             return views
         return self._rectified_views(views.raw,
                                      self._readout_rotation(se3_inverse(self._pose(self._records[-1])) @ T_wc))
 
     def _readout_rotation(self, motion: torch.Tensor | None) -> torch.Tensor | None:
-        """The camera's rotation over the sensor's readout: ``tracker.rolling_shutter_readout`` times the rotation
-        of ``motion`` (``T_prev^-1 T_cur``, so R_cur = R_prev Exp(omega): in the camera frame); float64 (3,), or
-        None without a motion."""
+        """The camera's rotation over the sensor's readout: the readout (``tracker.rolling_shutter_readout`` or
+        the estimate) times the rotation of ``motion`` (``T_prev^-1 T_cur``, so R_cur = R_prev Exp(omega): in the
+        camera frame); float64 (3,) on the CPU, where frames are rectified, or None without a motion."""
         if motion is None:
             return None
-        return self.config.tracker.rolling_shutter_readout * so3_log(motion[:3, :3].to(torch.float64))
+        return self.readout * so3_log(motion[:3, :3].to(torch.float64)).cpu()
+
+    def _turn_since_last(self, T_wc: torch.Tensor) -> torch.Tensor | None:
+        """The rotation vector (float64 (3,), camera frame) from the last frame to a frame tracked at ``T_wc``;
+        None when the last frame's pose is only predicted."""
+        if not self._records or not self._records[-1].ok:
+            return None
+        motion = se3_inverse(self._pose(self._records[-1])) @ T_wc.to(torch.float64)
+        return so3_log(motion[:3, :3]).cpu()
+
+    def _weigh_readouts(self, views: _Views, ref: MapKeyframe, track: TrackResult, turn: torch.Tensor,
+                        kf_turn: torch.Tensor, kf_readout: float) -> None:
+        """Evidence for the readout (:mod:`codeslam.slam.readout`): the tracked frame (own turn from the last frame
+        ``turn``) aligned again to ``ref`` (turn ``kf_turn``, rectified by ``kf_readout`` times it), photometrically
+        from its tracked pose, under readout 0 and each candidate; the choice so far holds from the next frame."""
+        net, _, sensor = views.raw
+        n = self._alignment_threads
+
+        def residual(c: float) -> float:  # the frame keeps the keyframe's distortion under hypothesis c
+            readout = c * (turn - kf_turn) + kf_readout * kf_turn
+            frame = _rectified(net, sensor, readout) if float(readout.norm()) > 0 else net
+            r = self._readout_tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, track.T_kf,
+                                            track.affine, valid=frame.valid)
+            return r.residual if r.overlap > 0 else math.nan
+
+        with _torch_threads(None if n is None else min(n, torch.get_num_threads())):
+            base = residual(0.0)
+            candidates = [residual(c) for c in CANDIDATES]
+        self.readout_choice.add(base, candidates, views.frame.index)
+        if self.readout_choice.value is not None:
+            self.readout = self.readout_choice.value
 
     def _rectified_views(self, raw: tuple[Frame, Features | None, PinholeCamera],
                          readout: torch.Tensor | None) -> _Views:
@@ -694,6 +746,10 @@ class CodeSLAM:
             raise CodeSLAMError("no frame has been processed")
         return Trajectory(np.array([k.timestamp for k in self.keyframes]),
                           torch.stack([k.T_wc for k in self.keyframes]))
+
+    def readout_summary(self) -> dict | None:
+        """The online choice of the rolling-shutter readout and its evidence; None when it is not estimated."""
+        return None if self.readout_choice is None else self.readout_choice.summary()
 
     def tracking_failures(self) -> list[int]:
         """Indices of the frames whose pose is only predicted."""

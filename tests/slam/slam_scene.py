@@ -108,3 +108,43 @@ def preset_frames(seed: int, frames: int, motion: str, fps: float, width: int = 
     cam, image, depth, poses = _rendered_preset(seed, frames, motion, fps, width, height)
     return [Frame(1000.0 + i / fps, image[i].clone(), cam, depth[i].clone(), poses[i].clone(), i)
             for i in range(frames)]
+
+
+def _turn(t: torch.Tensor) -> torch.Tensor:
+    """(..., 3, 3) orientation at time t (frames) of a camera that turns in place, yawing back and forth by up to
+    5 degrees per frame (so that frames and their keyframes turn at different speeds) and nodding a little."""
+    yaw, pitch = 0.25 * torch.sin(0.35 * t), 0.04 * torch.sin(0.6 * t)
+    cy, sy, cp, sp = torch.cos(yaw), torch.sin(yaw), torch.cos(pitch), torch.sin(pitch)
+    o, z = torch.ones_like(t), torch.zeros_like(t)
+    Ry = torch.stack([torch.stack([cy, z, sy], -1), torch.stack([z, o, z], -1), torch.stack([-sy, z, cy], -1)], -2)
+    Rx = torch.stack([torch.stack([o, z, z], -1), torch.stack([z, cp, -sp], -1), torch.stack([z, sp, cp], -1)], -2)
+    return Ry @ Rx
+
+
+def _wall_texture(X: torch.Tensor, Y: torch.Tensor) -> torch.Tensor:
+    """Grey level in [0, 1] on the wall: twelve gratings of random direction and 2-16 cycles per 2 pi metres."""
+    g = torch.Generator().manual_seed(0)
+    out = torch.full_like(X, 0.5)
+    for _ in range(12):
+        f, a, phase = (torch.rand(3, generator=g, dtype=X.dtype) * torch.tensor([14.0, 2 * np.pi, 2 * np.pi])).unbind()
+        out = out + (0.25 / (1 + 0.15 * (2 + f))) * torch.sin((2 + f) * (torch.cos(a) * X + torch.sin(a) * Y) + phase)
+    return out.clamp(0, 1)
+
+
+def rolling_shutter_frames(readout: float, frames: int = 10, width: int = WIDTH, height: int = HEIGHT) -> list[Frame]:
+    """A camera turning in place before a textured wall 3 m away, ray-cast pixel by pixel: row y of frame i is seen
+    at time i + readout (y - (H - 1) / 2) / H frames (``readout`` 0: a global shutter); depth and ground-truth
+    pose at mid-readout (exact)."""
+    cam = canonical_camera(width, height)
+    v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
+                          indexing="ij")
+    rays = torch.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, torch.ones_like(u)], -1)
+    out = []
+    for i in range(frames):
+        d = (_turn(i + readout * (v - 0.5 * (height - 1)) / height) @ rays.unsqueeze(-1)).squeeze(-1)
+        depth = 3.0 / d[..., 2]  # the wall z = 3 in the world, the camera at the origin
+        image = _wall_texture(depth * d[..., 0], depth * d[..., 1]).float()
+        pose = torch.eye(4, dtype=torch.float64)
+        pose[:3, :3] = _turn(torch.tensor(float(i), dtype=torch.float64))
+        out.append(Frame(1000.0 + i / 10, image[None].repeat(3, 1, 1), cam, depth.float(), pose, i))
+    return out

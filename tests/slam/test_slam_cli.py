@@ -62,6 +62,10 @@ def test_slam_cli_writes_a_tum_trajectory_and_a_summary(dataset, tmp_path, capsy
     cloud = read_ply(out / "map.ply")
     assert len(cloud) > 1000 and np.isfinite(cloud.xyz.numpy()).all()
     assert "ATE SE(3)" in captured.out
+    # the readout is estimated by default: 9 tracked frames are too few to decide it (the summary says so)
+    rs = summary["rolling_shutter"]
+    assert rs["readout"] is None and rs["decided_at_frame"] is None and rs["frames"] <= 9
+    assert "rolling shutter" in captured.out and "not decided" in captured.out
 
 
 def _one_line_error(capsys, argv):

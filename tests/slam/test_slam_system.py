@@ -112,7 +112,8 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
 
     frames = synth_frames(3, 4, 7.5)
     cfg = small_config(size=3)
-    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_readout=0.5))
+    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_readout=0.5,
+                                                                rolling_shutter_estimate=False))
     system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
     system.camera = frames[0].camera
     assert system._last_motion() is None and system._readout_rotation(system._last_motion()) is None
