@@ -222,6 +222,16 @@ def slam_command(
         write_json(json_out, summary)
 
 
+def _readout_text(rs: dict) -> str:
+    """The summary's line on the readout chosen online (``result.json``'s ``rolling_shutter``)."""
+    if rs["readout"] is None:
+        return f"readout not decided ({rs['frames']} turning frames, too few)"
+    what = f"readout {rs['readout']:.2f} of the frame interval" if rs["readout"] > 0 else "global shutter"
+    if rs["decided_at_frame"] is None:
+        return f"{what} (provisional, from {rs['frames']} turning frames)"
+    return f"{what} (chosen at frame {rs['decided_at_frame']} from {rs['frames']} turning frames)"
+
+
 def _print_summary(s: dict, out: Path) -> None:
     from rich.console import Console
     from rich.markup import escape
@@ -241,10 +251,7 @@ def _print_summary(s: dict, out: Path) -> None:
         rows.append(("camera", str(s["camera"])))
     rs = s.get("rolling_shutter")
     if isinstance(rs, dict):  # tracker.rolling_shutter_estimate
-        rows.append(("rolling shutter", "readout not decided (too few turning frames)" if rs["readout"] is None else
-                     f"readout {rs['readout']:.2f} of the frame interval (chosen at frame {rs['decided_at_frame']} "
-                     f"from {rs['frames']} turning frames)" if rs["readout"] > 0 else
-                     f"global shutter (chosen at frame {rs['decided_at_frame']} from {rs['frames']} turning frames)"))
+        rows.append(("rolling shutter", _readout_text(rs)))
     if "ate_se3_rmse" in s:
         rows += [
             ("ATE SE(3)", f"{s['ate_se3_rmse']:.4f} m"),

@@ -68,6 +68,18 @@ def test_slam_cli_writes_a_tum_trajectory_and_a_summary(dataset, tmp_path, capsy
     assert "rolling shutter" in captured.out and "not decided" in captured.out
 
 
+def test_the_summary_says_how_the_readout_was_chosen():
+    from codeslam.cli.slam import _readout_text
+
+    base = {"frames": 40, "decided_at_frame": 48, "readout": 0.59}
+    assert _readout_text(base) == "readout 0.59 of the frame interval (chosen at frame 48 from 40 turning frames)"
+    assert _readout_text({**base, "readout": 0.0}) == "global shutter (chosen at frame 48 from 40 turning frames)"
+    assert _readout_text({**base, "frames": 25, "decided_at_frame": None, "readout": 0.0}) == (
+        "global shutter (provisional, from 25 turning frames)")
+    assert _readout_text({**base, "frames": 3, "decided_at_frame": None, "readout": None}) == (
+        "readout not decided (3 turning frames, too few)")
+
+
 def _one_line_error(capsys, argv):
     rc = main(argv)
     err = capsys.readouterr().err.strip()
