@@ -128,8 +128,8 @@ class _Views:
 
     frame: Frame
     features: Features | None
-    raw: tuple[Frame, Features | None, PinholeCamera] | None = None  # with a rolling-shutter readout: the
-    # unrectified frame and keypoints, and the input camera whose rows were read out
+    raw: tuple[Frame, Features | None, PinholeCamera]  # the frame and keypoints before any rolling-shutter
+    # rectification, and the input camera whose rows were read out
 
 
 def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Frame:
@@ -226,7 +226,8 @@ class CodeSLAM:
         self.readout_choice = ReadoutChoice() if tcfg.rolling_shutter_estimate else None
         # Its alignments start at the tracked pose and move it by a pixel at most: the finest level alone
         self._readout_tracker = PhotometricTracker(
-            dataclasses.replace(tcfg, pyramid_levels=tcfg.pyramid_levels[-1:], max_iterations=(8,)), config.window.sfm)
+            dataclasses.replace(tcfg, pyramid_levels=tcfg.pyramid_levels[-1:], max_iterations=(8,)),
+            config.window.sfm) if tcfg.rolling_shutter_estimate else None
         self._turn: dict[int, tuple[torch.Tensor, float]] = {}  # estimating: keyframe id -> (its turn from the
         # frame before it, the readout it was rectified with)
 
@@ -332,23 +333,18 @@ class CodeSLAM:
             else:
                 decision = dataclasses.replace(decision, add=False, reason="mapping busy")
         kw = dict(track=track, decision=decision, status=status, source=source, rolled_back=rolled_back)
-        turn = self._turn_since_last(ref.T_wc @ track.T_kf) if self.readout_choice is not None else None
-        first_after = self._keyframe_record.get(ref.id) == len(self._records) - 1
-        if turn is not None and ref.id not in self._turn and first_after:
-            # a keyframe without a frame before it (the first): its turn to the next one, not rectified
-            self._turn[ref.id] = (turn, 0.0)
-        if turn is not None and ref.id in self._turn:  # estimating the readout: the frame against its keyframe
-            if self.readout_choice.informative(turn - self._turn[ref.id][0]):
-                with timer("readout"):
-                    self._weigh_readouts(views, ref, track, turn, *self._turn[ref.id])
+        T_wc = ref.T_wc @ track.T_kf
+        turn = self._turn_from_last(T_wc)  # its rotation from the last frame (None for the first)
+        estimating = self.readout_choice is not None and turn is not None and self._records[-1].ok
+        if estimating:
+            self._estimate_readout(views, ref, track, turn, timer)
         if not decision.add:
             self._last_tracked = (views, ref, sparse, len(self._records))
             return self._record(views.frame, ref, track.T_kf, True, timer, **kw)
-        T_wc = ref.T_wc @ track.T_kf
         kid, segment = self._new_id(), self.segment
-        if turn is not None:
-            self._turn[kid] = (turn, self.readout)  # _rerectified rectifies it by this readout times this turn
-        kviews = self._rerectified(views, T_wc)
+        if estimating:
+            self._turn[kid] = (turn, self.readout)  # the readout and turn it is rectified by, next line
+        kviews = self._rerectified(views, turn)
         job = MappingJob(lambda: self._make_keyframe(kviews, T_wc, kid, segment), ref, sparse, len(self._records))
         result = self._record(views.frame, ref, track.T_kf, True, timer, **kw)  # re-expressed once mapped
         done = self.mapper.insert(job)  # Sec. 4.3: decode, marginalise, optimise the window
@@ -595,13 +591,12 @@ class CodeSLAM:
         with timer("resample"):
             return self._rectified_views(raw, self._readout_rotation(self._last_motion()))
 
-    def _rerectified(self, views: _Views, T_wc: torch.Tensor) -> _Views:
-        """A new keyframe's views rectified again with the rotation from the last frame to this one (tracked),
-        instead of the one frame older motion-model guess."""
-        if self.readout <= 0 or views.raw is None or not self._records:
+    def _rerectified(self, views: _Views, turn: torch.Tensor | None) -> _Views:
+        """A new keyframe's views rectified again with ``turn``, its tracked rotation from the last frame, instead
+        of the one frame older motion-model guess."""
+        if self.readout <= 0 or turn is None:
             return views
-        return self._rectified_views(views.raw,
-                                     self._readout_rotation(se3_inverse(self._pose(self._records[-1])) @ T_wc))
+        return self._rectified_views(views.raw, self.readout * turn)
 
     def _readout_rotation(self, motion: torch.Tensor | None) -> torch.Tensor | None:
         """The camera's rotation over the sensor's readout: the readout (``tracker.rolling_shutter_readout`` or
@@ -611,13 +606,22 @@ class CodeSLAM:
             return None
         return self.readout * so3_log(motion[:3, :3].to(torch.float64)).cpu()
 
-    def _turn_since_last(self, T_wc: torch.Tensor) -> torch.Tensor | None:
-        """The rotation vector (float64 (3,), camera frame) from the last frame to a frame tracked at ``T_wc``;
-        None when the last frame's pose is only predicted."""
-        if not self._records or not self._records[-1].ok:
+    def _turn_from_last(self, T_wc: torch.Tensor) -> torch.Tensor | None:
+        """The rotation vector (float64 (3,) on the CPU, camera frame) from the last frame to a frame at ``T_wc``;
+        None before any frame."""
+        if not self._records:
             return None
-        motion = se3_inverse(self._pose(self._records[-1])) @ T_wc.to(torch.float64)
-        return so3_log(motion[:3, :3]).cpu()
+        return so3_log((se3_inverse(self._pose(self._records[-1])) @ T_wc)[:3, :3].to(torch.float64)).cpu()
+
+    def _estimate_readout(self, views: _Views, ref: MapKeyframe, track: TrackResult, turn: torch.Tensor,
+                          timer: _StageTimer) -> None:
+        """Weigh a tracked frame (``turn`` from a tracked last frame) for the readout when it turns against its
+        keyframe; a keyframe without a frame before it (the first) takes the turn of the frame after it."""
+        if ref.id not in self._turn and self._keyframe_record.get(ref.id) == len(self._records) - 1:
+            self._turn[ref.id] = (turn, 0.0)  # not rectified: made before any readout
+        if ref.id in self._turn and self.readout_choice.informative(turn - self._turn[ref.id][0]):
+            with timer("readout"):
+                self._weigh_readouts(views, ref, track, turn, *self._turn[ref.id])
 
     def _weigh_readouts(self, views: _Views, ref: MapKeyframe, track: TrackResult, turn: torch.Tensor,
                         kf_turn: torch.Tensor, kf_readout: float) -> None:

@@ -128,7 +128,7 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     # a new keyframe is rectified again with the rotation from the last frame to its tracked pose
     T_wc = system._pose(system._records[-1]) @ se3_exp(torch.tensor([0.0, 0.0, 0.01, 0.0, 0.02, 0.0],
                                                                     dtype=torch.float64))
-    kviews = system._rerectified(views, T_wc)
+    kviews = system._rerectified(views, system._turn_from_last(T_wc))
     expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera,
                                                                0.5 * torch.tensor([0.0, 0.02, 0.0])))
     assert torch.allclose(kviews.frame.image, expected, atol=1e-5)
