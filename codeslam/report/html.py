@@ -168,8 +168,8 @@ def statistics_html(run: RunFiles) -> str:
 
 # ---- figures --------------------------------------------------------------------------------------------------
 def report_figures(run: RunFiles) -> list[tuple[str, object, str]]:
-    """The report's figures as (element id, plotly figure, caption), in page order. The drift figure needs ground
-    truth, the keyframe panels ``keyframes.npz``; the others are always there."""
+    """The report's figures as (element id, plotly figure or figure dict, caption), in page order. The drift figure
+    needs ground truth, the keyframe panels ``keyframes.npz``; the others are always there."""
     s = run.summary
     kf = run.keyframes
     kf_times = kf["timestamp"] if kf is not None and "timestamp" in kf else None
@@ -223,7 +223,8 @@ def build_html(run: RunFiles) -> str:
     body += ['<h2 id="statistics">Statistics</h2>', statistics_html(run)]
     config = {"displaylogo": False, "responsive": True}
     for fig_id, fig, caption in figs:
-        div = pio.to_html(fig, full_html=False, include_plotlyjs=False, div_id=fig_id, config=config)
+        div = pio.to_html(fig, full_html=False, include_plotlyjs=False, div_id=fig_id, config=config,
+                          validate=not isinstance(fig, dict))  # a dict was built from a validated figure
         body.append(f'<div class="figure"><h2>{_e(titles.get(fig_id, fig_id))}</h2>{div}'
                     f'<p class="note">{_e(caption)}</p></div>')
     head = (f"<meta charset=\"utf-8\"><title>CodeSLAM report: {_e(Path(str(s.get('dataset', run.root))).name)}"

@@ -175,6 +175,23 @@ def test_a_camera_that_never_moved_and_an_empty_map_still_give_a_report(tmp_path
     assert not [w for w in recwarn if issubclass(w.category, RuntimeWarning)]
 
 
+def test_map_points_keep_their_colours_and_the_figure_is_valid_plotly(tmp_path):
+    import plotly.graph_objects as go
+
+    root = _make_run(tmp_path / "run")
+    rgb = np.random.default_rng(3).integers(0, 256, size=(500, 3)).astype(np.uint8)
+    xyz = np.random.default_rng(2).normal(size=(500, 3)).astype(np.float32)
+    write_ply(root / "map.ply", PointCloud(torch.from_numpy(xyz), torch.from_numpy(rgb)))
+    fig = {i: f for i, f, _ in report_figures(load_run(root))}["fig-map"]
+    cloud = fig["data"][0]
+    assert cloud["type"] == "scatter3d" and cloud["mode"] == "markers"
+    expected = [f"#{r:02x}{g:02x}{b:02x}" for r, g, b in rgb.tolist()]  # 500 points: none left out
+    assert cloud["marker"]["color"] == expected
+    go.Figure(fig)  # what was added unvalidated passes plotly's validation
+    page = write_report(root).read_text()
+    assert all(c in page for c in expected[:20])
+
+
 def test_view_axes_find_up_from_upright_cameras():
     gt = _circle_poses(20)
     e1, e2, up = view_axes(gt)
