@@ -17,7 +17,6 @@ import torch
 
 from codeslam.synth.generate import scene_seed
 from codeslam.synth.motion import PRESETS, preset_trajectory
-from codeslam.synth.scene import build_scene
 
 
 def frame_motion(T: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
@@ -42,7 +41,7 @@ def main() -> None:
             tr, rot, t0 = [], [], time.perf_counter()
             for i in range(args.seeds):
                 s = scene_seed(0, i)
-                scene = build_scene(s, room=PRESETS[name].room)
+                scene = PRESETS[name].scene(s)
                 T = preset_trajectory(scene, args.frames, np.random.default_rng(np.random.SeedSequence([s, 0x7247])),
                                       name, fps=fps)
                 a, b = frame_motion(T)

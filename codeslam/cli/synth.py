@@ -18,8 +18,8 @@ def synth_command(
     frames: int = typer.Option(100, "--frames", help="Frames per sequence (at --fps frames per second)."),
     motion: str | None = typer.Option(
         None, "--motion", help="Camera path preset: handheld (0.3-0.6 m/s, up to 45 deg/s), walk (0.8-1.5 m/s "
-        "through a large room, up to 60 deg/s), fast-turn (standing, pans up to 90 deg/s); default: the slow "
-        "original path."),
+        "through a large room, up to 60 deg/s), fast-turn (standing, pans up to 90 deg/s), corridor (0.8-1.4 "
+        "m/s along a bare corridor of 10-20 m: forward motion); default: the slow original path."),
     fps: float = typer.Option(30.0, "--fps", help="Frames per second of the sequences (the motion per frame "
                               "follows from the preset's speeds)."),
     seed: int = typer.Option(0, "--seed", help="Base seed: the same seed gives byte-identical output."),

@@ -73,7 +73,7 @@ def generate_sequence(
         scene = build_scene(seed)
         poses = random_trajectory(scene, frames, rng, fps=fps)
     else:
-        scene = build_scene(seed, room=preset.room)
+        scene = preset.scene(seed)
         poses = preset_trajectory(scene, frames, rng, preset, fps=fps)
     stamps = SEQUENCE_T0 + np.arange(frames) / fps
     names = [f"{t:.6f}" for t in stamps]

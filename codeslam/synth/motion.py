@@ -1,4 +1,4 @@
-"""Camera paths as people move a camera: the motion presets ``handheld``, ``walk`` and ``fast-turn``.
+"""Camera paths as people move a camera: the motion presets ``handheld``, ``walk``, ``fast-turn`` and ``corridor``.
 
 The default sequences (:func:`codeslam.synth.trajectory.random_trajectory`) drift a few millimetres per
 frame. A preset instead simulates a person carrying the camera, in continuous time at ``SIM_HZ``, and samples
@@ -10,7 +10,10 @@ the path at the frame times, so the motion between frames follows from the speed
   height 1.45-1.8 m looking where the walker goes, with glances to the side, turns of up to 60 deg/s (plus
   shake), a head bob at the walker's step frequency and a sway at half of it;
 - ``fast-turn``: standing at 1.4-1.8 m, panning by 45-180 deg at a time at up to 60-90 deg/s with pauses,
-  the body swaying by a few centimetres.
+  the body swaying by a few centimetres;
+- ``corridor``: the walk along a bare corridor (1.8-3 m wide, 10-20 m long, doors, windows and pictures on its
+  walls, nothing on its floor) at 0.8-1.4 m/s: forward motion, the focus of expansion in view, where a direct
+  method has the least parallax; turning back at its ends.
 
 Each path is a rate- and acceleration-limited follower of targets (way points, look directions, pan angles)
 drawn from the sequence's random generator, so it is continuous (no teleports) and its speeds and turn rates
@@ -33,6 +36,8 @@ walk       10   9.2 / 14.2 / 15.9         1.6 / 5.9 / 7.8        0.84       59
 walk       30   3.1 / 4.7 / 5.2           0.6 / 2.0 / 2.7        0.88       61
 fast-turn  10   0.6 / 1.1 / 1.9           6.1 / 9.0 / 11.0       0.06       90
 fast-turn  30   0.2 / 0.4 / 0.7           2.0 / 3.1 / 3.8        0.07       93
+corridor   10   10.3 / 13.8 / 14.9        1.3 / 5.9 / 7.9        0.88       59
+corridor   30   3.3 / 4.5 / 4.8           0.5 / 1.9 / 2.9        0.90       56
 =========  ===  ========================  =====================  =========  =========
 
 The walk's mean speed sits at the low end of its cruise range because the walker slows down for turns at way
@@ -53,7 +58,7 @@ import numpy as np
 import torch
 
 from codeslam.errors import CodeSLAMError
-from codeslam.synth.scene import RoomSize, Scene
+from codeslam.synth.scene import RoomSize, Scene, build_scene
 from codeslam.synth.trajectory import _small_rotation, _unit, look_at, matmul3
 
 #: Rate (Hz) of the continuous-time simulation; a multiple of 10 and 30 so those frame rates sample it exactly.
@@ -100,6 +105,17 @@ class MotionPreset:
     leg: tuple[float, float]
     # Size ranges of the room the preset builds when the caller gives no scene.
     room: RoomSize
+    # Furniture and clutter of that room (``build_scene``'s ``clutter``), and further doors, windows and pictures
+    # per metre of wall (``wall_items_per_m``): a corridor has many doors.
+    clutter: float = 1.0
+    wall_items_per_m: float = 0.0
+    # Whether the room has furniture on its floor (a corridor's would block the way).
+    furniture: bool = True
+
+    def scene(self, seed: int) -> Scene:
+        """The room this preset walks through for ``seed``."""
+        return build_scene(seed, clutter=self.clutter, room=self.room, wall_items_per_m=self.wall_items_per_m,
+                           furniture=self.furniture)
 
 
 PRESETS: dict[str, MotionPreset] = {
@@ -117,6 +133,13 @@ PRESETS: dict[str, MotionPreset] = {
         name="fast-turn", speed=(0.0, 0.0), max_rate_deg=90.0, max_ang_accel_deg=400.0, max_accel=0.3,
         height=(1.4, 1.8), look="pan", bob=(0.0, 0.0), shake_deg=(0.12, 0.4), shake_m=(0.001, 0.004),
         clearance=0.4, body_radius=0.25, leg=(0.0, 0.0), room=RoomSize((4.0, 9.0), (4.0, 9.0), (2.4, 3.2)),
+    ),
+    # The walk along a corridor (data version 2's corridor layout): forward motion, the focus of expansion in view.
+    "corridor": MotionPreset(
+        name="corridor", speed=(0.8, 1.4), max_rate_deg=60.0, max_ang_accel_deg=200.0, max_accel=1.0,
+        height=(1.45, 1.8), look="ahead", bob=(0.01, 0.025), shake_deg=(0.1, 0.35), shake_m=(0.001, 0.003),
+        clearance=0.4, body_radius=0.3, leg=(4.0, 18.0), room=RoomSize((1.8, 3.0), (10.0, 20.0), (2.4, 3.2)),
+        wall_items_per_m=0.5, furniture=False,
     ),
 }
 

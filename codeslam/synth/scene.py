@@ -916,13 +916,15 @@ def build_scene_v2(seed: int) -> Scene:
 
 
 def build_scene(seed: int, clutter: float = 1.0, room: RoomSize | None = None, partitions: int = 0,
-                wall_items_per_m: float = 0.0) -> Scene:
+                wall_items_per_m: float = 0.0, furniture: bool = True) -> Scene:
     """Draw a room from ``seed``. ``clutter`` scales the number of furniture and clutter items; ``room``
     (default :data:`DEFAULT_ROOM`) gives the ranges of its size. Rooms of another size get ceiling lights
     spread over the whole floor (one per AREA_PER_LIGHT m²) instead of 1-3 near the middle; a seed built
     without ``room`` is the same scene as before sizes could be chosen. ``partitions``: up to that many
     interior walls with doorways (1 or 2 with probability 1/2 each); ``wall_items_per_m``: further doors,
-    windows, pictures and boards per metre of wall (large rooms and corridors need more than the default)."""
+    windows, pictures and boards per metre of wall (large rooms and corridors need more than the default);
+    ``furniture`` False: none on the floor (no furniture, tables or floor clutter; a corridor to walk along), the
+    walls' items still there."""
     b = _Builder(seed)
     rng = b.rng
     size = room or DEFAULT_ROOM
@@ -936,18 +938,19 @@ def build_scene(seed: int, clutter: float = 1.0, room: RoomSize | None = None, p
     if rng.random() < 0.55 and min(b.W, b.D) > 2.2:  # (no rug in a corridor)
         _rug(b)
     _wall_items(b, int(rng.integers(1, 3)))  # a first few wall items (doors claim floor space)
-    makers = [(_shelf, 1.2), (_cabinet, 1.0), (_desk, 1.2), (_bed, 0.35), (_sofa, 0.5), (_floor_lamp, 0.4)]
-    n_big = max(2, int(round(clutter * area / rng.uniform(3.5, 6.0))))
-    weights = np.array([w for _, w in makers])
-    for _ in range(n_big):
-        maker = makers[int(rng.choice(len(makers), p=weights / weights.sum()))][0]
-        maker(b)
-    for _ in range(int(rng.integers(1, 3))):
-        _table(b, against_wall=False)
-    if rng.random() < 0.5:
-        _table(b, against_wall=True)
-    for _ in range(int(clutter * rng.integers(1, 5))):
-        _floor_clutter(b)
+    if furniture:
+        makers = [(_shelf, 1.2), (_cabinet, 1.0), (_desk, 1.2), (_bed, 0.35), (_sofa, 0.5), (_floor_lamp, 0.4)]
+        n_big = max(2, int(round(clutter * area / rng.uniform(3.5, 6.0))))
+        weights = np.array([w for _, w in makers])
+        for _ in range(n_big):
+            maker = makers[int(rng.choice(len(makers), p=weights / weights.sum()))][0]
+            maker(b)
+        for _ in range(int(rng.integers(1, 3))):
+            _table(b, against_wall=False)
+        if rng.random() < 0.5:
+            _table(b, against_wall=True)
+        for _ in range(int(clutter * rng.integers(1, 5))):
+            _floor_clutter(b)
     _wall_items(b, int(clutter * rng.integers(2, 7)))
     if wall_items_per_m > 0:
         _wall_items(b, int(round(wall_items_per_m * 2 * (b.W + b.D))))

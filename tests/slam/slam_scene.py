@@ -94,7 +94,7 @@ def small_config(**window) -> SLAMConfig:
 def _rendered_preset(seed: int, frames: int, motion: str, fps: float, width: int, height: int):
     from codeslam.synth.motion import get_preset, preset_trajectory
 
-    scene = build_scene(seed, room=get_preset(motion).room)
+    scene = get_preset(motion).scene(seed)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7247]))
     poses = preset_trajectory(scene, frames, rng, motion, fps=fps)
     cam = canonical_camera(width, height)

@@ -24,6 +24,7 @@ RANGES_10 = {
     "handheld": {"t_med": (3.0, 6.0), "t_95": (4.5, 8.0), "r_med": (0.8, 4.0), "r_95": (2.5, 7.0)},
     "walk": {"t_med": (7.0, 15.0), "t_95": (11.0, 17.0), "r_med": (0.8, 4.0), "r_95": (3.5, 9.0)},
     "fast-turn": {"t_med": (0.0, 2.0), "t_95": (0.0, 4.0), "r_med": (3.0, 9.0), "r_95": (6.0, 10.0)},
+    "corridor": {"t_med": (7.0, 14.0), "t_95": (11.0, 16.0), "r_med": (0.5, 4.0), "r_95": (3.5, 9.0)},
 }
 
 
@@ -39,7 +40,7 @@ def _paths(name: str, fps: float, frames: int):
     out = []
     for i in SEEDS:
         s = scene_seed(0, i)
-        scene = build_scene(s, room=PRESETS[name].room)
+        scene = PRESETS[name].scene(s)
         T = preset_trajectory(scene, frames, np.random.default_rng(np.random.SeedSequence([s, 0x7247])), name,
                               fps=fps)
         out.append((scene, T))
@@ -90,7 +91,7 @@ def test_fast_turn_stands_and_pans_fast():
 
 
 def test_deterministic_per_seed_and_same_path_at_any_frame_rate():
-    scene = build_scene(5, room=PRESETS["walk"].room)
+    scene = PRESETS["walk"].scene(5)
     a = preset_trajectory(scene, 31, np.random.default_rng(9), "walk", fps=10)
     b = preset_trajectory(scene, 31, np.random.default_rng(9), "walk", fps=10)
     c = preset_trajectory(scene, 31, np.random.default_rng(10), "walk", fps=10)
