@@ -10,6 +10,8 @@ level (paper Sec. 4.1: the decoder's Jacobian is computed once per keyframe).
 
 from __future__ import annotations
 
+import cv2
+import numpy as np
 import torch
 
 from codeslam.data.frame import Frame
@@ -44,12 +46,29 @@ def standin_true_code(frame_index: int, code_size: int = 32, scale: float = 0.2,
     return scale * torch.randn(code_size, generator=gen, dtype=torch.float64)
 
 
+def fill_depth_holes(depth: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """(H, W) depth with its invalid pixels (``valid`` False) filled from the valid ones around them, by
+    OpenCV's Navier-Stokes inpainting in log depth (its Telea method gives erratic values on float images).
+
+    A sensor's holes are scattered (the HoloLens walk's depth misses 38-69% of the pixels at 128x96, spread over
+    the whole image), along its border (TUM's undistortion) or beyond its range (a corridor's far end past 10 m):
+    each is filled by its surroundings, where the single median depth used before made a scattered half of a
+    HoloLens frame one flat depth and a corridor's far end 3 m away. Measured by holding out a random 20% of the
+    valid pixels (every 12th frame, 128x96): mean |log depth| error of the filled values HoloLens walk 0.255 ->
+    0.0073, TUM fr1/rpy 0.272 -> 0.0136 (a push-pull pyramid fill: 0.0078, 0.0130)."""
+    log_d = torch.where(valid, depth.clamp_min(1e-6).log(), torch.zeros_like(depth)).cpu().numpy().astype(np.float32)
+    holes = (~valid).cpu().numpy().astype(np.uint8)
+    filled = torch.from_numpy(cv2.inpaint(log_d, holes, 3, cv2.INPAINT_NS)).to(depth)
+    return torch.where(valid, depth, filled.exp())
+
+
 def standin_depth_model(
     code_size: int = 32, num_levels: int = 4, avg_depth: float = 1.5, code_offset_scale: float | None = 0.2,
     blur_sigma: float = 3.0, basis_scale: float = 0.05, seed: int = 0,
 ) -> DepthModelFactory:
     """A stand-in depth model from the frame's own depth (see :func:`codeslam.sfm.standin_decoder`), holes filled
-    with the median depth; Jacobian = a smooth cosine basis times ``0.5 + grey image``. Needs frames with depth.
+    from their surroundings (:func:`fill_depth_holes`); Jacobian = a smooth cosine basis times ``0.5 + grey
+    image``. Needs frames with depth.
 
     With ``code_offset_scale`` (default) the measured proximity is reached exactly at a random code
     ``c* ~ N(0, code_offset_scale^2 I)`` (:func:`standin_true_code`), so the zero code is the truth
@@ -70,7 +89,7 @@ def standin_depth_model(
         valid = torch.isfinite(depth) & (depth > 0)
         if not bool(valid.any()):
             raise CodeSLAMError(f"frame {frame.index} has no valid depth for the stand-in depth model")
-        filled = torch.where(valid, depth, depth[valid].median())  # the stand-in needs a hole-free target
+        filled = fill_depth_holes(depth, valid)  # the stand-in needs a hole-free target
         offset = None if code_offset_scale is None else standin_true_code(frame.index, code_size,
                                                                            code_offset_scale, seed)
         return standin_decoder(depth_to_prox(filled, avg_depth), code_size, num_levels, avg_depth,

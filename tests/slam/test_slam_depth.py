@@ -1,5 +1,5 @@
 """Depth models for keyframes: the network adapter gives the network's own decoding on every level, the stand-in
-reproduces the measured depth at its true code."""
+reproduces the measured depth at its true code and fills a sensor's holes from their surroundings."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.proximity import depth_to_prox
 from codeslam.network import CodeNetwork, NetworkConfig
-from codeslam.slam.depth import network_depth_model, standin_depth_model, standin_true_code
+from codeslam.slam.depth import fill_depth_holes, network_depth_model, standin_depth_model, standin_true_code
 
 
 def test_standin_reaches_the_measured_depth_at_its_true_code():
@@ -46,3 +46,20 @@ def test_network_depth_model_decodes_like_the_network():
     other = dataclasses.replace(frame, camera=canonical_camera(64, 48, hfov_deg=70))
     with pytest.raises(CodeSLAMError, match="canonical camera"):
         network_depth_model(model)(other)
+
+
+def test_holes_are_filled_from_their_surroundings_not_with_one_depth():
+    # a floor-like ramp from 1 m (bottom rows) to 8 m (top rows): scattered holes as a HoloLens leaves them, and a
+    # block at the far end as beyond a sensor's range
+    H, W = 48, 64
+    depth = torch.linspace(8.0, 1.0, H, dtype=torch.float64)[:, None].expand(H, W).clone()
+    valid = torch.rand(H, W, generator=torch.Generator().manual_seed(0)) > 0.5
+    valid[:8, 24:40] = False
+    out = fill_depth_holes(depth, valid)
+    assert torch.equal(out[valid], depth[valid]) and bool(torch.isfinite(out).all())
+    rel = (out / depth - 1).abs()
+    scattered = ~valid
+    scattered[:8, 24:40] = False
+    # measured: mean 1.6%, largest 17% (a cluster of holes by the 1 m rows); the median depth is 59% off on average
+    assert float(rel[scattered].mean()) < 0.03 and float(rel[scattered].max()) < 0.3
+    assert float(out[:8, 24:40].min()) > 6.0  # the far block stays far (the median depth is 4.5 m; truth 7.1-8)
