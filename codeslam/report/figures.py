@@ -144,7 +144,7 @@ def status_figure(frame_idx: np.ndarray, status: list[str], reason: list[str], k
     from plotly.subplots import make_subplots
 
     go = _go()
-    stats = [c for c in ("inlier_ratio", "overlap") if frames is not None and c in frames
+    stats = [c for c in ("inlier_ratio", "overlap", "texture") if frames is not None and c in frames
              and np.isfinite(np.asarray(frames[c], dtype=float)).any()]
     rows = 2 if stats else 1
     fig = make_subplots(rows=rows, cols=1, shared_xaxes=True, vertical_spacing=0.08,
@@ -167,11 +167,11 @@ def status_figure(frame_idx: np.ndarray, status: list[str], reason: list[str], k
         customdata=kf_reasons, hovertemplate="keyframe at frame %{x}"
         + ("<br>%{customdata}" if kf_reasons else "") + "<extra></extra>"), row=1, col=1)
     fig.update_yaxes(type="category", categoryorder="array", categoryarray=["keyframe", *order[::-1]], row=1, col=1)
-    for c, colour in zip(stats, ("#00838f", "#6a1b9a")):
+    for c, colour in zip(stats, ("#00838f", "#6a1b9a", "#ef6c00")):
         fig.add_trace(go.Scatter(x=np.asarray(frames["frame"]), y=np.asarray(frames[c], dtype=float), mode="lines",
                                  name=c.replace("_", " "), line=dict(color=colour)), row=2, col=1)
     if stats:
-        fig.update_yaxes(title_text="fraction", range=[0, 1.05], row=2, col=1)
+        fig.update_yaxes(title_text="fraction; texture: intensity std", range=[0, 1.05], row=2, col=1)
     fig.update_xaxes(title_text="frame", row=rows, col=1)
     _layout(fig, "Tracking status per frame", 300 if rows == 1 else 460)
     return fig

@@ -39,7 +39,7 @@ REPORT_FILE = "report.html"
 #: frames.csv columns read as numbers (an empty cell is NaN); the others stay text.
 FRAME_NUMERIC_COLUMNS = (
     "frame", "timestamp", "is_keyframe", "ref_keyframe", "segment", "overlap", "inlier_ratio", "explained",
-    "feature_inliers", "feature_matches", "residual", "iterations", "window_ms", "track_ms", "total_ms",
+    "feature_inliers", "feature_matches", "residual", "texture", "iterations", "window_ms", "track_ms", "total_ms",
 )
 
 

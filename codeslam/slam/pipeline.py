@@ -197,7 +197,8 @@ def failures_by_reason(results: list[FrameResult]) -> dict[str, int]:
 #: Columns of the per-frame log ``frames.csv``.
 FRAME_LOG_COLUMNS = ("frame", "timestamp", "status", "reason", "is_keyframe", "keyframe_reason", "ref_keyframe",
                      "segment", "source", "photometric_reason", "overlap", "inlier_ratio", "explained",
-                     "feature_inliers", "feature_matches", "residual", "iterations", "window_ms", "window_iterations",
+                     "feature_inliers", "feature_matches", "residual", "texture", "iterations", "window_ms",
+                     "window_iterations",
                      "window_interrupted", "window_rejected", "rolled_back", "track_ms", "total_ms")
 
 
@@ -216,6 +217,7 @@ def frame_log_rows(results: list[FrameResult]) -> list[dict]:
             "overlap": _fmt(t.overlap if t else nan), "inlier_ratio": _fmt(t.inlier_ratio if t else nan),
             "explained": _fmt(t.explained if t else nan), "feature_inliers": t.feature_inliers if t else 0,
             "feature_matches": t.feature_matches if t else 0, "residual": _fmt(t.residual if t else nan),
+            "texture": _fmt(t.texture if t else nan),
             "iterations": t.iterations if t else 0, "window_ms": _fmt(w.ms if w else nan, 1),
             "window_iterations": w.iterations if w else "", "window_interrupted": int(w.interrupted) if w else "",
             "window_rejected": w.rejected if w else "", "rolled_back": r.rolled_back,

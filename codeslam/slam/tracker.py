@@ -62,6 +62,9 @@ class TrackResult:
             still ok when enough feature matches agree with the pose (forward motion changes much of the image
             and fails the explained-variance check while the pose is right).
         residual: RMS photometric residual over the overlap at the finest level (intensity units).
+        texture: standard deviation of the keyframe's intensities over that overlap, what the alignment has to go
+            on (a blank wall in the generator's fast turns: 0.05, textured views 0.1-0.2; below
+            ``min_intensity_std`` the tracking fails).
     """
 
     T_kf: torch.Tensor
@@ -77,6 +80,7 @@ class TrackResult:
     feature_inliers: int = 0
     photometric_reason: str = ""
     residual: float = float("nan")
+    texture: float = float("nan")
 
 
 SOLVERS = ("dedicated", "generic")
@@ -271,4 +275,4 @@ class PhotometricTracker:
             reason = f"brightness gain {math.exp(float(affine[0])):.2f} outside exp(+-{cfg.max_log_gain:g})"
         return TrackResult(T_kf=T_kf, affine=affine, ok=not reason, reason=reason, overlap=overlap,
                            inlier_ratio=inlier_ratio, explained=explained, cost=cost, iterations=iterations,
-                           photometric_reason=reason, residual=rms)
+                           photometric_reason=reason, residual=rms, texture=math.sqrt(var_A))

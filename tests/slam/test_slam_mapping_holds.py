@@ -108,6 +108,9 @@ def test_a_lost_camera_is_relocalised_or_restarts_and_the_log_says_so(tmp_path):
     assert tuple(rows[0].keys()) == FRAME_LOG_COLUMNS and len(rows) == len(frames)
     assert [r["status"] for r in rows] == status
     assert all(rows[i]["reason"] for i in range(8, 12))  # a lost frame says why
+    # the keyframe's intensity spread over the overlap (what the alignment had to go on) of the tracked frames
+    texture = [float(r["texture"]) for r in rows[1:8]]
+    assert all(0.05 < t < 0.5 for t in texture), texture
     assert bool(torch.isfinite(run.trajectory.poses).all())
 
 

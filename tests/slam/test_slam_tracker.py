@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 from slam_scene import small_config, synth_frames
 
@@ -97,3 +98,17 @@ def test_tracking_textureless_frames_fails_instead_of_passing_as_tracked():
     kf_black = Keyframe(black.float(), frames[0].camera, dec.to(torch.float32))
     res = tracker.track(kf_black, code, black, frames[0].camera, torch.eye(4, dtype=D))
     assert not res.ok and "texture" in res.reason, res
+    assert res.texture == 0.0
+
+
+def test_the_texture_the_alignment_had_is_reported():
+    # frames.csv's 'texture': the keyframe's intensity spread over the overlap; a view with a tenth of the
+    # contrast (a blank wall's shading) reports a tenth of it and is still tracked above min_intensity_std
+    frames, tracker, kf, code = _setup()
+    res = tracker.track(kf, code, frames[1].gray, frames[1].camera, torch.eye(4, dtype=D))
+    faint = 0.5 + 0.1 * (frames[0].gray - 0.5)
+    kf_faint = Keyframe(faint.float(), kf.camera, kf.decoder)
+    res_faint = tracker.track(kf_faint, code, 0.5 + 0.1 * (frames[1].gray - 0.5), frames[1].camera,
+                              torch.eye(4, dtype=D))
+    assert res.ok and 0.05 < res.texture < 0.5, res.texture
+    assert res_faint.texture == pytest.approx(0.1 * res.texture, rel=0.05), (res_faint.texture, res.texture)
