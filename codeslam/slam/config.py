@@ -85,6 +85,7 @@ class TrackerConfig:
     frames 0 / 5 / 10 / 15: 1.71 / 6.37 / 3.35 / 2.82 deg -> 1.42 / 1.53 / 1.15 / 2.94 deg (a hand-set 0.5: 1.38 /
     1.35 / 1.50 / 1.68). Costs about 10 ms per frame over TUM's first 50 frames (four alignments at the finest
     level per informative frame), nothing after."""
+
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)
         if not 0.0 <= self.rolling_shutter_readout <= 1.0:

@@ -105,17 +105,15 @@ class MotionPreset:
     leg: tuple[float, float]
     # Size ranges of the room the preset builds when the caller gives no scene.
     room: RoomSize
-    # Furniture and clutter of that room (``build_scene``'s ``clutter``), and further doors, windows and pictures
-    # per metre of wall (``wall_items_per_m``): a corridor has many doors.
-    clutter: float = 1.0
+    # Further doors, windows and pictures per metre of wall of that room (``build_scene``'s ``wall_items_per_m``):
+    # a corridor has many doors.
     wall_items_per_m: float = 0.0
     # Whether the room has furniture on its floor (a corridor's would block the way).
     furniture: bool = True
 
     def scene(self, seed: int) -> Scene:
         """The room this preset walks through for ``seed``."""
-        return build_scene(seed, clutter=self.clutter, room=self.room, wall_items_per_m=self.wall_items_per_m,
-                           furniture=self.furniture)
+        return build_scene(seed, room=self.room, wall_items_per_m=self.wall_items_per_m, furniture=self.furniture)
 
 
 PRESETS: dict[str, MotionPreset] = {
