@@ -334,8 +334,11 @@ class CodeSLAM:
                 decision = dataclasses.replace(decision, add=False, reason="mapping busy")
         kw = dict(track=track, decision=decision, status=status, source=source, rolled_back=rolled_back)
         T_wc = ref.T_wc @ track.T_kf
-        turn = self._turn_from_last(T_wc)  # its rotation from the last frame (None for the first)
-        estimating = self.readout_choice is not None and turn is not None and self._records[-1].ok
+        choosing = self.readout_choice is not None and not self.readout_choice.final
+        # its rotation from the last frame (None for the first), needed while the readout is being chosen and to
+        # rectify a new keyframe under a readout
+        turn = self._turn_from_last(T_wc) if choosing or (decision.add and self.readout > 0) else None
+        estimating = choosing and turn is not None and self._records[-1].ok
         if estimating:
             self._estimate_readout(views, ref, track, turn, timer)
         if not decision.add:
