@@ -6,7 +6,7 @@
 #
 #   OUT=dir PACKS="p1.safetensors p2.safetensors" scripts/issue13/gpu_adapt.sh
 #
-# Env: DEVICE (cuda), PAR (jobs at once, 6), BUDGET_S (no job starts after this many seconds, and every job is
+# Env: DEVICE (cuda), ONLY (a regex: run only the jobs it matches), PAR (jobs at once, 6), BUDGET_S (no job starts after this many seconds, and every job is
 #      killed then plus GRACE_S; 420 and 30).
 # Writes $OUT/results.jsonl (one line per finished job), $OUT/logs.tar.gz and, per pack, the adapted weights of
 # the job with the lowest held-out zero-code RMSE ($OUT/best_<pack>.safetensors).
@@ -33,6 +33,7 @@ start=$SECONDS
 pids=()
 for j in "${jobs[@]}"; do
   name=${j%%|*}; sets=${j#*|}
+  [[ "$name" =~ ${ONLY:-.} ]] || continue
   for p in $packs; do
     pk=$(basename "$p" .safetensors)
     while [ "$(jobs -rp | wc -l)" -ge "$par" ]; do sleep 1; done
