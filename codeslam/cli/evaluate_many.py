@@ -30,6 +30,7 @@ COLUMNS = (
     ("never_moving_ate_m", "never-moving ATE [m]", "no_motion_ate_rmse_aligned", 4),
     ("rot_err_deg", "rot. error [deg]", "rot_aligned_rmse_deg", 2),
     ("rpe_trans_m", "RPE [m]", "rpe_trans_rmse", 4),
+    ("rpe_trans_sim3_m", "RPE Sim(3) [m]", "rpe_trans_sim3_rmse", 4),
     ("rpe_rot_deg", "RPE [deg]", "rpe_rot_rmse_deg", 3),
     ("sim3_scale", "scale", "sim3_scale", 3),
     ("fps", "frames/s", "fps", 2),

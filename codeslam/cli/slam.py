@@ -259,7 +259,8 @@ def _print_summary(s: dict, out: Path) -> None:
             ("no-motion ATE", f"{s['no_motion_ate_rmse']:.4f} m (aligned {s['no_motion_ate_rmse_aligned']:.4f} m)"),
             ("rotation error", f"{s['rot_aligned_rmse_deg']:.3f} deg RMSE after the best rotation alignment "
                                f"({s['rot_err_rmse_deg']:.3f} deg relative to the first frame)"),
-            ("RPE", f"{s['rpe_trans_rmse']:.4f} m, {s['rpe_rot_rmse_deg']:.3f} deg per frame"),
+            ("RPE", f"{s['rpe_trans_rmse']:.4f} m ({s['rpe_trans_sim3_rmse']:.4f} m after the Sim(3) scale), "
+                    f"{s['rpe_rot_rmse_deg']:.3f} deg per frame"),
         ]
     elif "evaluation_error" in s:
         rows.append(("evaluation", s["evaluation_error"]))

@@ -28,7 +28,8 @@ def rotation_drift_deg(est: Trajectory, ref: Trajectory, ate: metrics.ATEResult)
 
 
 def evaluate_run(est: Trajectory, gt: Trajectory) -> dict:
-    """Metrics of the estimate against ground truth: ATE (SE(3) and Sim(3) alignment), RPE, the orientation
+    """Metrics of the estimate against ground truth: ATE (SE(3) and Sim(3) alignment), RPE (its translation also
+    after the Sim(3) scale, ``rpe_trans_sim3_rmse``), the orientation
     error relative to the first frame (``rot_err_rmse_deg``, ``rot_err_max_deg``) and after the best rotation
     alignment (``rot_aligned_rmse_deg``, ``rot_aligned_max_deg``), and two no-motion
     baselines: a constant pose at the first ground-truth pose
@@ -49,6 +50,8 @@ def evaluate_run(est: Trajectory, gt: Trajectory) -> dict:
     out.update(rot_aligned_rmse_deg=float(np.sqrt(np.mean(rot_al**2))), rot_aligned_max_deg=float(rot_al.max()))
     sim3 = metrics.ate(est, gt, align="sim3")
     out.update(ate_sim3_rmse=float(sim3.rmse), sim3_scale=float(sim3.alignment.s))
+    # a monocular map has no scale of its own: its per-frame translations read after the Sim(3) scale (evo_rpe -as)
+    out["rpe_trans_sim3_rmse"] = float(metrics.rpe(est, gt, align="sim3").trans.rmse)
     xyz = gt.positions_xyz.numpy()
     out["no_motion_ate_rmse"] = float(np.sqrt(np.mean(np.sum((xyz - xyz[0]) ** 2, axis=1))))
     out["no_motion_ate_rmse_aligned"] = float(np.sqrt(np.mean(np.sum((xyz - xyz.mean(0)) ** 2, axis=1))))

@@ -104,6 +104,7 @@ def metric_rows(s: dict) -> list[tuple[str, str, str]]:
         ("rotation error relative to the first frame [deg]",
          f"{_num(s.get('rot_err_rmse_deg'), 3)} RMSE, {_num(s.get('rot_err_max_deg'), 3)} max", ""),
         ("RPE per frame, translation [m]", _num(s.get("rpe_trans_rmse")), ""),
+        ("RPE per frame, translation after the Sim(3) scale [m]", _num(s.get("rpe_trans_sim3_rmse")), ""),
         ("RPE per frame, rotation [deg]", _num(s.get("rpe_rot_rmse_deg"), 3), ""),
         ("error at the last frame, first pose anchored [m]", _num(s.get("drift_end_error")), ""),
         ("ground-truth path length [m]", _num(s.get("path_length_gt"), 3), ""),

@@ -265,3 +265,17 @@ def test_orientation_errors_after_the_best_rotation_alignment():
     raw = orientation_errors_aligned(R_ref @ noise, R_ref)
     assert np.sqrt(np.mean(err**2)) <= np.sqrt(np.mean(raw**2)) + 1e-9
     assert 0.01 < np.sqrt(np.mean(err**2)) < 0.06
+
+
+def test_a_runs_rpe_is_also_read_after_the_sim3_scale():
+    """A monocular map at half the true scale: its per-frame translations are half the truth's, so the rigid RPE
+    is half the true motion per frame while the Sim(3)-scaled one (evo_rpe -as) is zero."""
+    from codeslam.eval.slam_run import evaluate_run
+
+    gt = helix()
+    est = transformed(gt, random_sim3(np.random.default_rng(3), 0.5))
+    out = evaluate_run(est, gt)
+    step = np.linalg.norm(np.diff(gt.positions_xyz.numpy(), axis=0), axis=1)
+    assert out["rpe_trans_rmse"] == pytest.approx(0.5 * np.sqrt(np.mean(step**2)), rel=1e-6)
+    assert out["rpe_trans_sim3_rmse"] < 1e-9
+    assert out["sim3_scale"] == pytest.approx(2.0, rel=1e-9)

@@ -48,7 +48,7 @@ def test_slam_cli_writes_a_tum_trajectory_and_a_summary(dataset, tmp_path, capsy
     assert len(kfs) == summary["keyframes"] >= 2
     for key in ("frames", "keyframes", "tracking_failures", "fps", "ate_se3_rmse", "ate_sim3_rmse", "sim3_scale",
                 "no_motion_ate_rmse", "no_motion_ate_rmse_aligned", "rot_err_rmse_deg", "rpe_trans_rmse",
-                "ms_per_frame", "depth_model"):
+                "rpe_trans_sim3_rmse", "ms_per_frame", "depth_model"):
         assert key in summary, key
     assert summary["frames"] == 10 and summary["tracking_failures"] == 0
     assert summary["ate_se3_rmse"] < summary["no_motion_ate_rmse_aligned"]
