@@ -163,7 +163,7 @@ class PhotometricTracker:
         state, cost, valid_px, r, sigma, gray_A, iterations = align(keyframe, code, image, camera, valid, state,
                                                                     layout, terms)
         result = self._checked(state, valid_px, r, sigma, gray_A, cost, iterations)
-        if terms:
+        if reprojection is not None and len(reprojection) > 0:  # not the motion prior alone (a frame without matches)
             result.feature_matches = len(reprojection)
             result.feature_inliers = int(reprojection.inliers(state, feature_threshold).sum())
             finite = "non-finite" not in result.reason

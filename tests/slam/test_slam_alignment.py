@@ -189,6 +189,17 @@ def test_dedicated_and_generic_solvers_agree_with_keypoints_and_the_motion_prior
         _same_result(res, depth, cost=1e-5)
 
 
+def test_the_motion_prior_alone_without_keypoints_tracks():
+    """A frame with no matched keypoints (a blank wall) and the motion prior on: the prior is the only extra term
+    (it once was taken for the keypoints' and the frame failed with an internal error)."""
+    frames, trackers, kf, code = _scene(torch.float32, motion_prior=0.01)
+    T_prior = se3_inverse(frames[0].pose) @ frames[2].pose
+    res = {s: t.track(kf, code, frames[2].gray, frames[2].camera, torch.eye(4, dtype=D), T_kf_prior=T_prior)
+           for s, t in trackers.items()}
+    assert res["generic"].ok and res["generic"].feature_matches == 0
+    _same_result(res, float(frames[0].depth.median()), cost=1e-5)
+
+
 def test_interpolant_gradients_track_alike():
     frames, trackers, kf, code = _scene(D, gradient_mode="interpolant")
     res = {s: t.track(kf, code, frames[2].gray, frames[2].camera, torch.eye(4, dtype=D)) for s, t in trackers.items()}
