@@ -76,22 +76,56 @@ def pack(args) -> None:
     print(f"packed {args.out}: train {tuple(out['train_images'].shape)}, test {tuple(out['test_images'].shape)}")
 
 
-def _prior(network, images: torch.Tensor, depth: torch.Tensor, a: float) -> dict:
+def _zero_prox(network, x: torch.Tensor) -> torch.Tensor:
+    feats = network.image_features(x)
+    return network.decode(feats, feats[0].new_zeros(x.shape[0], network.code_size))[0][:, 0]
+
+
+def _prior(network, images: torch.Tensor, depth: torch.Tensor, a: float, scale_from=None) -> dict:
+    """The zero-code prior's statistics on ``images``; with ``scale_from`` (another network), every image's
+    predicted depth is first rescaled so that its mean log depth is that network's: shape from ``network``, scale
+    from ``scale_from``."""
     from depth_prior_eval import PriorStats
+
+    from codeslam.geometry.proximity import depth_to_prox, prox_to_depth
+    from codeslam.network.model import to_network_image
 
     stats = PriorStats()
     dev = next(network.parameters()).device
     network.eval()
     with torch.no_grad():
         for s in range(0, images.shape[0], 16):
-            from codeslam.network.model import to_network_image
-
             x = to_network_image(images[s:s + 16].to(dev).float() / 255.0, network.config.in_channels)
-            feats = network.image_features(x)
-            code = feats[0].new_zeros(x.shape[0], network.code_size)
-            prox = network.decode(feats, code)[0][:, 0].cpu()
-            stats.add(prox, depth[s:s + 16].float(), a)
+            prox = _zero_prox(network, x)
+            if scale_from is not None:
+                log_d = prox_to_depth(prox, a).log()
+                log_ref = prox_to_depth(_zero_prox(scale_from, x), a).log()
+                shift = (log_ref.mean(dim=(-2, -1)) - log_d.mean(dim=(-2, -1)))[:, None, None]
+                prox = depth_to_prox((log_d + shift).exp(), a)
+            stats.add(prox.cpu(), depth[s:s + 16].float(), a)
     return stats.result()
+
+
+def evaluate_weights(args) -> None:
+    """The held-out statistics of a weights file, as is and with the shipped network's scale per image."""
+    from safetensors.torch import load_file
+
+    from codeslam.depthmodel import DepthModel
+
+    p = load_file(args.pack)
+    start = DepthModel.load(None, device=args.device).network
+    for w in args.weights:
+        net = DepthModel.load(None if w == "default" else w, device=args.device).network
+        row = {"weights": w, "pack": Path(args.pack).name,
+               "as_is": _prior(net, p["test_images"], p["test_depth"], start.avg_depth),
+               "start_scale": _prior(net, p["test_images"], p["test_depth"], start.avg_depth, scale_from=start)}
+        r0, r1 = row["as_is"], row["start_scale"]
+        print(f"{w}: zero RMSE {r0['zero_rmse']:.4f} (median {r0['median_depth_ratio']:.3f}), with the start "
+              f"network's scale {r1['zero_rmse']:.4f} (median {r1['median_depth_ratio']:.3f}); scaled "
+              f"{r0['si_rmse']:.4f}", flush=True)
+        if args.results:
+            with open(args.results, "a") as f:
+                f.write(json.dumps(row) + "\n")
 
 
 def run(args) -> None:
@@ -148,6 +182,11 @@ def main() -> None:
     pk.add_argument("--test", required=True)
     pk.add_argument("--poses", default=None)
     pk.add_argument("--out", required=True)
+    ev = sub.add_parser("eval")
+    ev.add_argument("pack")
+    ev.add_argument("--weights", action="append", required=True)
+    ev.add_argument("--device", default="cpu")
+    ev.add_argument("--results", default=None)
     rn = sub.add_parser("run")
     rn.add_argument("pack")
     rn.add_argument("--name", required=True)
@@ -162,6 +201,8 @@ def main() -> None:
     args = ap.parse_args()
     if args.cmd == "pack":
         pack(args)
+    elif args.cmd == "eval":
+        evaluate_weights(args)
     else:
         torch.set_num_threads(args.threads)
         run(args)
