@@ -43,11 +43,13 @@ class TrackerConfig:
     """Estimate a gain and bias between keyframe and frame (exposure changes, paper Sec. 5.2)."""
     motion_model: str = "constant_velocity"
     """Initial guess and failure fallback: 'constant_velocity' (repeat the last inter-frame motion) or 'static'."""
-    motion_prior_translation: float = 0.0
-    """Noise (map units, ~metres, per frame) of a soft prior on the frame's translation at the motion model's
-    prediction; 0 switches it off."""
-    motion_prior_rotation_deg: float = 0.0
-    """Noise (degrees per frame) of the same prior on the rotation; 0 leaves the rotation free."""
+    motion_prior_acceleration: float = 0.0
+    """A soft prior on the frame's pose at the motion model's prediction, as a constant-velocity model's process
+    noise: the acceleration (map units, ~metres, per s²) that the prediction leaves unexplained. The translation's
+    noise per frame is this times dt² (dt: the time since the last frame), so the same setting holds at 10 and at 30
+    frames per second and over dropped frames. 0 switches the prior off."""
+    motion_prior_angular_acceleration_deg: float = 0.0
+    """The same for the rotation (degrees per s²; noise per frame this times dt²); 0 leaves the rotation free."""
     min_overlap: float = 0.3
     """Tracking fails when fewer than this fraction of the keyframe's pixels land inside the frame."""
     min_inlier_ratio: float = 0.6
@@ -106,6 +108,9 @@ class TrackerConfig:
             raise ConfigError(f"tracker.max_log_gain must be positive, got {self.max_log_gain}")
         if not self.inlier_sigmas > 0:
             raise ConfigError(f"tracker.inlier_sigmas must be positive, got {self.inlier_sigmas}")
+        for name in ("motion_prior_acceleration", "motion_prior_angular_acceleration_deg"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"tracker.{name} must be >= 0, got {getattr(self, name)}")
 
 
 @dataclass(frozen=True)

@@ -112,7 +112,9 @@ class FrameResult:
 
 @dataclass
 class _FrameRecord:
-    """A frame's pose relative to its keyframe, re-expressed whenever the keyframe moves."""
+    """A frame's pose relative to its keyframe, re-expressed whenever the keyframe moves; and, for the motion
+    model, the keyframe it was tracked against with its pose there as tracked (a frame that becomes a keyframe is
+    re-expressed relative to itself, and the window then moves it)."""
 
     index: int
     timestamp: float
@@ -120,6 +122,8 @@ class _FrameRecord:
     T_kf: torch.Tensor
     ok: bool
     affine: torch.Tensor | None
+    tracked_id: int = -1
+    T_tracked: torch.Tensor | None = None
 
 
 @dataclass
@@ -374,7 +378,8 @@ class CodeSLAM:
                                        self._affine_guess(ref), valid=frame.valid, reprojection=term,
                                        min_feature_inliers=fcfg.min_inliers if term is not None else 0,
                                        feature_threshold=fcfg.pnp_threshold,
-                                       T_kf_prior=T_kf_guess if len(self._records) >= 2 else None)
+                                       T_kf_prior=T_kf_guess if len(self._records) >= 2 else None,
+                                       prior_dt=float(frame.timestamp) - self._records[-1].timestamp)
         source = "direct"
         if term is not None:
             source = "direct+features" if not track.photometric_reason else "features"
@@ -528,6 +533,10 @@ class CodeSLAM:
             if s is not None and s != 1.0:
                 rec.T_kf = rec.T_kf.clone()
                 rec.T_kf[:3, 3] *= s
+            s = scale.get(rec.tracked_id)
+            if s is not None and s != 1.0 and rec.T_tracked is not None:
+                rec.T_tracked = rec.T_tracked.clone()
+                rec.T_tracked[:3, 3] *= s
 
     def finish(self) -> None:
         """Wait for the mapping thread to finish its work and stop it (parallel mode; a no-op otherwise)."""
@@ -706,9 +715,14 @@ class CodeSLAM:
 
     def _last_motion(self) -> torch.Tensor | None:
         """``T_prev^-1 T_cur`` of the last two successfully tracked consecutive frames (None before there are two):
-        the motion model's velocity."""
+        the motion model's velocity. When the later frame has since become a keyframe, the motion is taken as the
+        two were tracked against their common keyframe: its pose now is the window's, and the window's correction
+        of it is not the camera's motion. (On the generator's fast turn a window moved such a keyframe 7 cm while
+        the camera moved 2 mm; with the motion prior on, the next 60 frames kept moving 6-9 cm per frame.)"""
         for prev, cur in zip(reversed(self._records[:-1]), reversed(self._records)):
             if prev.ok and cur.ok:
+                if cur.keyframe_id != cur.tracked_id and prev.tracked_id == cur.tracked_id:
+                    return se3_inverse(prev.T_tracked) @ cur.T_tracked
                 return se3_inverse(self._pose(prev)) @ self._pose(cur)
         return None
 
@@ -726,7 +740,8 @@ class CodeSLAM:
         if is_kf:
             self._keyframe_record[kf.id] = len(self._records)
         affine = track.affine if (ok and track is not None and not is_kf) else None
-        rec = _FrameRecord(frame.index, float(frame.timestamp), kf.id, T_kf.to(torch.float64), ok, affine)
+        T_kf = T_kf.to(torch.float64)
+        rec = _FrameRecord(frame.index, float(frame.timestamp), kf.id, T_kf, ok, affine, kf.id, T_kf)
         self._records.append(rec)
         if status == TRACKED and len(self.keyframes) < 2:
             status = INITIALISING

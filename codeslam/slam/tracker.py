@@ -135,12 +135,15 @@ class PhotometricTracker:
         min_feature_inliers: int = 0,
         feature_threshold: float = 3.0,
         T_kf_prior: torch.Tensor | None = None,
+        prior_dt: float | None = None,
     ) -> TrackResult:
         """Align ``image`` ((1, H, W) grey or (3, H, W) RGB, seen by ``camera``) to ``keyframe`` (with decoder)
         whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,).
         ``valid`` (H, W) bool marks the image's real pixels (None: all). ``reprojection``: matched keypoints
         (keyframe = frame 0, this frame = frame 1) whose residuals join the photometric ones; the result is then
-        also ok when at least ``min_feature_inliers`` of them lie within ``feature_threshold`` pixels."""
+        also ok when at least ``min_feature_inliers`` of them lie within ``feature_threshold`` pixels.
+        ``T_kf_prior``: the motion model's prediction of the pose, a soft prior on it (``prior_dt`` seconds since
+        the last frame; see ``TrackerConfig.motion_prior_acceleration``)."""
         cfg = self.cfg
         ref = keyframe.decoder.levels[0].jac
         dtype, device = ref.dtype, ref.device
@@ -157,8 +160,8 @@ class PhotometricTracker:
         fixed = [BlockId(POSE, 0), BlockId(CODE, 0), BlockId(CODE, 1)]
         layout = VariableLayout.for_sfm(2, 1, 1, cfg.affine_brightness, fixed)
         terms = [] if reprojection is None or len(reprojection) == 0 else [reprojection]
-        if T_kf_prior is not None and cfg.motion_prior_translation > 0:  # the motion model as a soft constraint
-            terms.append(self._motion_prior(T_kf_prior, dtype, device))
+        if T_kf_prior is not None and prior_dt is not None and cfg.motion_prior_acceleration > 0:
+            terms.append(self._motion_prior(T_kf_prior, prior_dt, dtype, device))  # the motion model, soft
         align = self._align_dedicated if self.solver == "dedicated" else self._align_generic
         state, cost, valid_px, r, sigma, gray_A, iterations = align(keyframe, code, image, camera, valid, state,
                                                                     layout, terms)
@@ -228,14 +231,16 @@ class PhotometricTracker:
         cost, ev = PairProblem(finest, pairs, sfm_cfg, terms).evaluate(state)
         return state, cost, ev.valid[0, 0], ev.r[0, 0], ev.sigma[0, 0], finest.gray[0, 0].reshape(-1), iterations
 
-    def _motion_prior(self, T_kf_prior: torch.Tensor, dtype: torch.dtype, device: torch.device) -> LinearPrior:
-        """``0.5 |log(T T_pred^-1)|^2_W`` on the frame's pose around the motion model's prediction: a translation
-        noise of ``motion_prior_translation`` (map units per frame) and, if set, a rotation noise. It resolves what
-        the images leave ambiguous (a small rotation and a small translation move a distant scene alike), which on
-        a rotating camera turned into translation jitter of several millimetres per frame."""
+    def _motion_prior(self, T_kf_prior: torch.Tensor, dt: float, dtype: torch.dtype,
+                      device: torch.device) -> LinearPrior:
+        """``0.5 |log(T T_pred^-1)|^2_W`` on the frame's pose around the motion model's prediction, with the noise of
+        a constant-velocity model whose acceleration is unknown: ``motion_prior_acceleration * dt^2`` in
+        translation and, if set, ``motion_prior_angular_acceleration_deg * dt^2`` in rotation. It resolves what the
+        images leave ambiguous (a small rotation and a small translation move a distant scene alike), which on a
+        rotating camera turned into translation jitter of several millimetres per frame."""
         cfg = self.cfg
-        inv = [1.0 / cfg.motion_prior_translation**2] * 3
-        rot = cfg.motion_prior_rotation_deg
+        inv = [1.0 / (cfg.motion_prior_acceleration * dt**2) ** 2] * 3
+        rot = cfg.motion_prior_angular_acceleration_deg * dt**2
         inv += [0.0 if rot <= 0 else 1.0 / math.radians(rot) ** 2] * 3
         H = torch.diag(torch.tensor(inv, dtype=dtype, device=device))
         return LinearPrior([BlockId(POSE, 1)], H, torch.zeros(6, dtype=dtype, device=device),

@@ -4,6 +4,7 @@ dedicated and the generic solver ending at the same pose and cost (generator fra
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import pytest
@@ -37,8 +38,8 @@ def _scene(dtype=D, gradient_mode="sobel", motion_prior=0.0):
     and the code at which that depth is right."""
     frames = synth_frames(3, 12, 10.0)
     cfg = small_config()
-    cfg = replace(cfg, tracker=replace(cfg.tracker, motion_prior_translation=motion_prior,
-                                       motion_prior_rotation_deg=0.5 if motion_prior else 0.0),
+    cfg = replace(cfg, tracker=replace(cfg.tracker, motion_prior_acceleration=motion_prior,
+                                       motion_prior_angular_acceleration_deg=50.0 if motion_prior else 0.0),
                   window=replace(cfg.window, sfm=replace(cfg.window.sfm, gradient_mode=gradient_mode)))
     trackers = {s: PhotometricTracker(cfg.tracker, cfg.window.sfm, solver=s) for s in ("generic", "dedicated")}
     dec = standin_depth_model(num_levels=3, seed=7)(frames[0])
@@ -178,13 +179,13 @@ def test_dedicated_and_generic_solvers_track_generator_frames_alike(dtype, rot, 
 
 
 def test_dedicated_and_generic_solvers_agree_with_keypoints_and_the_motion_prior():
-    frames, trackers, kf, code = _scene(torch.float32, motion_prior=0.01)
+    frames, trackers, kf, code = _scene(torch.float32, motion_prior=1.0)
     depth = float(frames[0].depth.median())
     for j in (2, 4):
         term = _keypoints(frames, j, torch.float32)
         T_prior = se3_inverse(frames[0].pose) @ frames[j].pose
         res = {s: t.track(kf, code, frames[j].gray, frames[j].camera, torch.eye(4, dtype=D), reprojection=term,
-                          min_feature_inliers=20, T_kf_prior=T_prior) for s, t in trackers.items()}
+                          min_feature_inliers=20, T_kf_prior=T_prior, prior_dt=0.1) for s, t in trackers.items()}
         assert res["generic"].ok and res["generic"].feature_inliers > 0.9 * len(term)
         _same_result(res, depth, cost=1e-5)
 
@@ -192,12 +193,24 @@ def test_dedicated_and_generic_solvers_agree_with_keypoints_and_the_motion_prior
 def test_the_motion_prior_alone_without_keypoints_tracks():
     """A frame with no matched keypoints (a blank wall) and the motion prior on: the prior is the only extra term
     (it once was taken for the keypoints' and the frame failed with an internal error)."""
-    frames, trackers, kf, code = _scene(torch.float32, motion_prior=0.01)
+    frames, trackers, kf, code = _scene(torch.float32, motion_prior=1.0)
     T_prior = se3_inverse(frames[0].pose) @ frames[2].pose
-    res = {s: t.track(kf, code, frames[2].gray, frames[2].camera, torch.eye(4, dtype=D), T_kf_prior=T_prior)
-           for s, t in trackers.items()}
+    res = {s: t.track(kf, code, frames[2].gray, frames[2].camera, torch.eye(4, dtype=D), T_kf_prior=T_prior,
+                      prior_dt=0.1) for s, t in trackers.items()}
     assert res["generic"].ok and res["generic"].feature_matches == 0
     _same_result(res, float(frames[0].depth.median()), cost=1e-5)
+
+
+def test_the_motion_priors_noise_grows_with_the_square_of_the_frame_interval():
+    """A constant-velocity model's unexplained acceleration a moves the frame by about a dt^2 per frame: at 10
+    frames per second the prior's noise is 4 times, its information 16 times what they are at 20."""
+    _, trackers, _, _ = _scene(D, motion_prior=2.0)
+    t = trackers["dedicated"]
+    H = {dt: torch.diag(t._motion_prior(torch.eye(4, dtype=D), dt, D, torch.device("cpu")).H) for dt in (0.05, 0.1)}
+    sigma_t = 2.0 * 0.1**2  # translation noise at dt = 0.1: 2 cm
+    sigma_r = math.radians(50.0 * 0.1**2)  # rotation: 0.5 deg
+    torch.testing.assert_close(H[0.1], torch.tensor([sigma_t**-2] * 3 + [sigma_r**-2] * 3, dtype=D))
+    torch.testing.assert_close(H[0.05], 16.0 * H[0.1])
 
 
 def test_interpolant_gradients_track_alike():

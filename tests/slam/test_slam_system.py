@@ -135,3 +135,29 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     plain = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
     plain.camera = frames[0].camera
     assert torch.equal(plain._views(frames[3], _StageTimer(torch.device("cpu"))).frame.image, frames[3].image)
+
+
+def test_the_motion_models_velocity_leaves_out_the_windows_correction_of_a_new_keyframe():
+    """A frame that became a keyframe is re-expressed relative to itself and the window then moves it: the
+    velocity up to it is the motion as the two frames were tracked against their common keyframe, not the jump
+    to the keyframe's corrected pose (on the generator's fast turn such a jump was 7 cm against 2 mm of motion)."""
+    from types import SimpleNamespace
+
+    from codeslam.geometry.lie import se3_exp, se3_inverse
+    from codeslam.slam.system import _FrameRecord
+
+    system = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
+    D = torch.float64
+    A = se3_exp(torch.tensor([0.01, 0.0, 0.002, 0.0, 0.02, 0.0], dtype=D))  # frame 1 in keyframe 0
+    B = se3_exp(torch.tensor([0.02, 0.0, 0.004, 0.0, 0.04, 0.0], dtype=D))  # frame 2 in keyframe 0, as tracked
+    correction = se3_exp(torch.tensor([0.07, -0.03, 0.0, 0.01, 0.0, 0.0], dtype=D))  # the window's
+    T0 = se3_exp(torch.tensor([0.3, 0.1, -0.2, 0.1, -0.2, 0.3], dtype=D))
+    system.keyframes = [SimpleNamespace(T_wc=T0), SimpleNamespace(T_wc=T0 @ B @ correction)]
+    eye = torch.eye(4, dtype=D)
+    system._records = [_FrameRecord(1, 0.1, 0, A, True, None, 0, A),
+                       _FrameRecord(2, 0.2, 1, eye, True, None, 0, B)]  # frame 2 became keyframe 1
+    torch.testing.assert_close(system._last_motion(), se3_inverse(A) @ B)
+    # the next frame, tracked against keyframe 1: the motion from the keyframe is the keyframe-relative pose
+    C = se3_exp(torch.tensor([0.02, 0.0, 0.0, 0.0, 0.02, 0.0], dtype=D))
+    system._records.append(_FrameRecord(3, 0.3, 1, C, True, None, 1, C))
+    torch.testing.assert_close(system._last_motion(), C)
