@@ -43,11 +43,15 @@ class TrackerConfig:
     """Estimate a gain and bias between keyframe and frame (exposure changes, paper Sec. 5.2)."""
     motion_model: str = "constant_velocity"
     """Initial guess and failure fallback: 'constant_velocity' (repeat the last inter-frame motion) or 'static'."""
-    motion_prior_acceleration: float = 0.0
+    motion_prior_acceleration: float = 4.0
     """A soft prior on the frame's pose at the motion model's prediction, as a constant-velocity model's process
     noise: the acceleration (map units, ~metres, per s²) that the prediction leaves unexplained. The translation's
     noise per frame is this times dt² (dt: the time since the last frame), so the same setting holds at 10 and at 30
-    frames per second and over dropped frames. 0 switches the prior off."""
+    frames per second and over dropped frames: 4 m/s² (a walking head's bob) gives 4 cm at 10 frames/s, 4.4 mm at
+    30. It holds the translation where a small rotation would explain the images as well (network depth, 1 thread,
+    docs/results/slam_table.md, session of 2026-11-26, fourth): TUM fr1/rpy 0.0167 -> 0.0149 m and 1.34 -> 1.21 deg,
+    the generator's four fast turns 1.29 / 13.07 / 0.51 / 0.43 -> 1.20 / 5.44 / 0.51 / 0.32 deg; the HoloLens walk
+    0.142 -> 0.142 m, the generator walk 0.062 -> 0.064 m, its corridor 0.248 -> 0.248 m. 0 switches it off."""
     motion_prior_angular_acceleration_deg: float = 0.0
     """The same for the rotation (degrees per s²; noise per frame this times dt²); 0 leaves the rotation free."""
     min_overlap: float = 0.3
