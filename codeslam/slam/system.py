@@ -379,7 +379,7 @@ class CodeSLAM:
                                        min_feature_inliers=fcfg.min_inliers if term is not None else 0,
                                        feature_threshold=fcfg.pnp_threshold,
                                        T_kf_prior=T_kf_guess if len(self._records) >= 2 else None,
-                                       prior_dt=float(frame.timestamp) - self._records[-1].timestamp)
+                                       prior_dt=self._since_tracked(frame))
         source = "direct"
         if term is not None:
             source = "direct+features" if not track.photometric_reason else "features"
@@ -712,6 +712,12 @@ class CodeSLAM:
         if motion is not None:
             T_pred = T_pred @ motion
         return se3_inverse(ref.T_wc) @ T_pred
+
+    def _since_tracked(self, frame: Frame) -> float | None:
+        """Seconds from the last successfully tracked frame to ``frame`` (None before there is one): the motion
+        prior's interval, so that a prediction carried over lost frames is held only as loosely as it deserves."""
+        last = next((r for r in reversed(self._records) if r.ok), None)
+        return None if last is None else float(frame.timestamp) - last.timestamp
 
     def _last_motion(self) -> torch.Tensor | None:
         """``T_prev^-1 T_cur`` of the last two successfully tracked consecutive frames (None before there are two):

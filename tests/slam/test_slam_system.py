@@ -161,3 +161,18 @@ def test_the_motion_models_velocity_leaves_out_the_windows_correction_of_a_new_k
     C = se3_exp(torch.tensor([0.02, 0.0, 0.0, 0.0, 0.02, 0.0], dtype=D))
     system._records.append(_FrameRecord(3, 0.3, 1, C, True, None, 1, C))
     torch.testing.assert_close(system._last_motion(), C)
+
+
+def test_the_motion_priors_interval_runs_from_the_last_tracked_frame():
+    """After lost frames the prediction is older than one frame interval: the prior's dt is the time since the
+    last frame that was tracked, so the prior is that much looser."""
+    from types import SimpleNamespace
+
+    from codeslam.slam.system import _FrameRecord
+
+    system = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
+    eye = torch.eye(4, dtype=torch.float64)
+    system._records = [_FrameRecord(0, 1.0, 0, eye, True, None, 0, eye)]
+    assert system._since_tracked(SimpleNamespace(timestamp=1.1)) == pytest.approx(0.1)
+    system._records += [_FrameRecord(i, 1.0 + 0.1 * i, 0, eye, False, None, 0, eye) for i in (1, 2, 3)]
+    assert system._since_tracked(SimpleNamespace(timestamp=1.4)) == pytest.approx(0.4)
