@@ -122,8 +122,8 @@ class _FrameRecord:
     T_kf: torch.Tensor
     ok: bool
     affine: torch.Tensor | None
-    tracked_id: int = -1
-    T_tracked: torch.Tensor | None = None
+    tracked_id: int
+    T_tracked: torch.Tensor
 
 
 @dataclass
@@ -534,7 +534,7 @@ class CodeSLAM:
                 rec.T_kf = rec.T_kf.clone()
                 rec.T_kf[:3, 3] *= s
             s = scale.get(rec.tracked_id)
-            if s is not None and s != 1.0 and rec.T_tracked is not None:
+            if s is not None and s != 1.0:
                 rec.T_tracked = rec.T_tracked.clone()
                 rec.T_tracked[:3, 3] *= s
 
