@@ -19,6 +19,7 @@ from codeslam.geometry.lie import (
     se3_exp_host,
     se3_inverse,
     se3_log,
+    se3_log_host,
     so3_exp,
     so3_left_jacobian,
     so3_left_jacobian_inv,
@@ -149,6 +150,22 @@ def test_se3_exp_host_is_se3_exp_at_every_angle_branch_and_keeps_dtype():
     xi32 = _xis(1, 13)[0].float()
     T = se3_exp_host(xi32)
     assert T.dtype == torch.float32 and torch.allclose(T.double(), se3_exp(xi32.double()), atol=1e-7)
+
+
+def test_se3_log_host_is_se3_log_at_every_angle_branch_and_keeps_dtype():
+    """Every angle branch (series, closed form, near pi) and every branch of Shepperd's method (the rotations about
+    each axis near pi make each diagonal element the largest)."""
+    phis = _phis(14)
+    rho = torch.randn(len(ANGLES), 3, generator=_gen(15), dtype=F64)
+    near_pi = [torch.tensor([a, 0.0, 0.0], dtype=F64) for a in (3.1, -3.1)] + [
+        torch.tensor(v, dtype=F64) * 3.1 for v in ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))]
+    Ts = [se3_exp(xi) for xi in torch.cat([rho, phis], dim=-1)]
+    Ts += [se3_exp(torch.cat([torch.ones(3, dtype=F64), p])) for p in near_pi]
+    for T in Ts:
+        assert torch.allclose(se3_log_host(T), se3_log(T), atol=1e-12, rtol=0)
+    T32 = se3_exp(_xis(1, 16)[0]).float()
+    xi = se3_log_host(T32)
+    assert xi.dtype == torch.float32 and torch.allclose(xi.double(), se3_log(T32.double()), atol=1e-6)
 
 
 def test_se3_group_laws():
