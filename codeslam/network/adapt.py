@@ -33,7 +33,6 @@ states, step), ``log.csv`` and, at the end, the adapted ``weights.safetensors``.
 
 from __future__ import annotations
 
-import copy
 import csv
 import io
 import json
@@ -101,12 +100,6 @@ class AdaptConfig:
     # network's. Video alone cannot tell the scale; without this the depth of a mostly rotating camera drifted
     # away (TUM fr1/rpy: median depth ratio 0.98 -> 1.27 in 400 steps).
     scale_anchor: float = 1.0
-    # Views per step whose mean log zero-code depth the scale anchor also holds at the start network's: random
-    # crops (a zoom of 1 to 1 / sqrt(0.5)), mirror images and gain changes of the step's frames. The anchor on the
-    # frames themselves holds their scale, not that of other views: measured with HoloLens and TUM halves
-    # (lr 1e-4, 2,000 steps), the held-out half's median depth moved 1.34 -> 1.44 (TUM) and 0.75 -> 0.73 while
-    # the adaptation frames' stayed. 0: none.
-    scale_anchor_views: int = 0
     # Leave out pixels that no motion explains better than the warp (see photometric_loss).
     automask: bool = True
     # Seed of the frame order.
@@ -117,8 +110,6 @@ class AdaptConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "neighbours", tuple(int(n) for n in self.neighbours))
-        if self.scale_anchor_views < 0:
-            raise ConfigError(f"adapt.scale_anchor_views must be >= 0, got {self.scale_anchor_views}")
         for name in ("steps", "batch", "levels", "log_every", "checkpoint_every"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"adapt.{name} must be >= 1, got {getattr(self, name)}")
@@ -329,10 +320,6 @@ def adapt(
             start_prox = [torch.cat(x) for x in zip(*parts, strict=True)]
         model.load_state_dict(current)
     start_log_depth = torch.log(prox_to_depth(start_prox[0], model.avg_depth)).mean(dim=(1, 2, 3))  # (N,)
-    start_model = None
-    if cfg.scale_anchor_views > 0:  # the start network, frozen, gives the scale the augmented views are held at
-        start_model = copy.deepcopy(model).eval().requires_grad_(False)
-        start_model.load_state_dict(start)
     for step in range(done, end):
         warm = step < cfg.pose_warmup
         for p in net_params:
@@ -377,12 +364,6 @@ def adapt(
         if not warm and cfg.scale_anchor > 0:
             log_depth = torch.log(prox_to_depth(prox[0][1], model.avg_depth)).mean(dim=(1, 2, 3))  # (B,)
             anchor = anchor + cfg.scale_anchor * (log_depth - start_log_depth[tgt_d]).square().mean()
-            if start_model is not None:
-                views = augmented_views(images, tgt[torch.arange(cfg.scale_anchor_views) % B], g).to(dev)
-                x = to_network_image(views, model.config.in_channels)
-                with torch.no_grad():
-                    ref = _mean_log_zero_depth(start_model, x)
-                anchor = anchor + cfg.scale_anchor * (_mean_log_zero_depth(model, x) - ref).square().mean()
         if not warm and cfg.anchor > 0:
             moved = sum(((p - start[n].to(p)) ** 2).sum() for n, p in model.named_parameters() if p.requires_grad)
             anchor = anchor + cfg.anchor * 0.5 * moved / n_weights
@@ -419,30 +400,6 @@ def adapt(
             "elapsed_s": f"{elapsed_before + time.perf_counter() - t0:.1f}",
         })
     return AdaptResult(run_dir, end, finished, last, poses_out.cpu())
-
-
-def _mean_log_zero_depth(model: CodeNetwork, x: torch.Tensor) -> torch.Tensor:
-    """(B, C, H, W) network input -> (B,) mean log depth of the zero-code prediction at full resolution."""
-    feats = model.image_features(x)
-    prox = model.decode(feats, feats[0].new_zeros(x.shape[0], model.code_size))[0]
-    return torch.log(prox_to_depth(prox, model.avg_depth)).mean(dim=(1, 2, 3))
-
-
-def augmented_views(images: torch.Tensor, idx: torch.Tensor, g: torch.Generator) -> torch.Tensor:
-    """Views of ``images[idx]`` ((N, 3, H, W) RGB in [0, 1]) for the augmented scale anchor: each a random crop of
-    0.5-1 of the area at the frame's aspect, resized to the full frame (a zoom), mirrored with probability 1/2 and
-    its gain scaled by 0.7-1.3; the random numbers from ``g`` (on the CPU). -> (V, 3, H, W) on the images' device."""
-    V = len(idx)
-    s = torch.sqrt(0.5 + 0.5 * torch.rand(V, generator=g))  # side of the crop, as a fraction of the frame's
-    t = (1 - s)[:, None] * (2 * torch.rand(V, 2, generator=g) - 1)  # its centre, inside the frame
-    flip = torch.where(torch.rand(V, generator=g) < 0.5, -1.0, 1.0)
-    gain = 0.7 + 0.6 * torch.rand(V, generator=g)
-    theta = torch.zeros(V, 2, 3)
-    theta[:, 0, 0], theta[:, 1, 1], theta[:, :, 2] = s * flip, s, t
-    x = images[idx.to(images.device)].float()
-    grid = F.affine_grid(theta.to(x), list(x.shape), align_corners=False)
-    out = F.grid_sample(x, grid, mode="bilinear", padding_mode="border", align_corners=False)
-    return (out * gain.to(x)[:, None, None, None]).clamp(0.0, 1.0)
 
 
 def _save(path, model, opt, codes, delta, bright, start, step, elapsed, cfg: AdaptConfig) -> None:

@@ -28,14 +28,8 @@ jobs=(
   "lr1e-4_a1_3k_b24|--set steps=3000 --set lr=1e-4 --set anchor=1 --set batch=24"
   "lr1e-4_a1_3k_noscale|--set steps=3000 --set lr=1e-4 --set anchor=1 --set scale_anchor=0"
   "lr1e-4_a1_8k|--set steps=8000 --set lr=1e-4 --set anchor=1"
-  # the scale anchor also on augmented views of the step's frames (session of 2026-11-26, fifth)
-  "card_v6|--set scale_anchor_views=6"
   "lr1e-4_a1_2k|--set steps=2000 --set lr=1e-4 --set anchor=1"
-  "lr1e-4_a1_2k_v6|--set steps=2000 --set lr=1e-4 --set anchor=1 --set scale_anchor_views=6"
-  "lr1e-4_a1_2k_v6_s10|--set steps=2000 --set lr=1e-4 --set anchor=1 --set scale_anchor_views=6 --set scale_anchor=10"
   "lr1e-4_a1_2k_s10|--set steps=2000 --set lr=1e-4 --set anchor=1 --set scale_anchor=10"
-  "lr1e-4_a1_2k_v6_s100|--set steps=2000 --set lr=1e-4 --set anchor=1 --set scale_anchor_views=6 --set scale_anchor=100"
-  "lr3e-5_a1_1k_v6_s10|--set steps=1000 --set lr=3e-5 --set anchor=1 --set scale_anchor_views=6 --set scale_anchor=10"
 )
 start=$SECONDS
 pids=()
