@@ -97,21 +97,15 @@ def fit_cost(prox: torch.Tensor, target: torch.Tensor, weight: torch.Tensor, cod
 class DepthModel:
     """A :class:`~codeslam.network.CodeNetwork` (in eval mode) and everything the tools need from it."""
 
-    def __init__(self, network: CodeNetwork, scale_network: CodeNetwork | None = None) -> None:
+    def __init__(self, network: CodeNetwork) -> None:
         self.network = network.eval()
-        # Adapted weights carry the network they started from: adaptation to a video without depth learns the
-        # depth's shape, and the scale of views it did not see drifts (docs/results/depth_prior_ablation.md);
-        # each image's depth then takes its scale from this network (:meth:`depth_scales`).
-        self.scale_network = None if scale_network is None else scale_network.eval()
 
     @classmethod
     def load(cls, weights: str | os.PathLike | None = None, device: torch.device | str = "cpu") -> DepthModel:
-        """From a weights file (the shipped default weights when None), with its scale network if it holds one;
-        WeightsError for a bad file."""
-        from codeslam.network.weights import load_model, load_scale_model
+        """From a weights file (the shipped default weights when None); WeightsError for a bad file."""
+        from codeslam.network.weights import load_model
 
-        return cls(load_model(weights, device=device),
-                   None if weights is None else load_scale_model(weights, device=device))
+        return cls(load_model(weights, device=device))
 
     # --- properties ---------------------------------------------------------------------------------------
     @property
@@ -154,21 +148,6 @@ class DepthModel:
         with torch.no_grad():
             return self.network.image_features(x)
 
-    def depth_scales(self, images: torch.Tensor, feats: list[torch.Tensor]) -> torch.Tensor | None:
-        """(B,) the factor each image's depth is multiplied by: exp of the scale network's mean log zero-code depth
-        minus this network's (over all pixels of the finest level, as adaptation's scale anchor measures it);
-        None without a scale network. ``images`` (B, 3, H, W) canonical RGB, ``feats`` their :meth:`features`."""
-        if self.scale_network is None:
-            return None
-        x = to_network_image(images.to(self.device, torch.float32), self.config.in_channels)
-        zero = feats[0].new_zeros(x.shape[0], self.code_size)
-        with torch.no_grad():
-            own = self.network.decode(feats, zero)[0]
-            ref = self.scale_network.decode(self.scale_network.image_features(x), zero)[0]
-        a = self.avg_depth
-        return torch.exp(torch.log(prox_to_depth(ref, a)).mean(dim=(1, 2, 3))
-                         - torch.log(prox_to_depth(own, a)).mean(dim=(1, 2, 3)))
-
     def uncertainty(self, feats: list[torch.Tensor]) -> list[torch.Tensor]:
         """-> 4 levels of the Laplace scale b (B, 1, h, w), from the image only (Sec. 2.1)."""
         with torch.no_grad():
@@ -185,13 +164,11 @@ class DepthModel:
             mean, _ = self.network.encode(feats, prox.to(self.device, torch.float32))
         return mean
 
-    def linear_decoders(self, feats: list[torch.Tensor], codes: torch.Tensor | None = None,
-                        scales: torch.Tensor | None = None) -> list[LinearDecoder]:
+    def linear_decoders(self, feats: list[torch.Tensor], codes: torch.Tensor | None = None) -> list[LinearDecoder]:
         """One :class:`LinearDecoder` per image: all pyramid levels of ``prox0`` and ``J = dD/dc`` from one batched
         forward pass (:func:`codeslam.network.code_jacobian`) and the uncertainty b. For the linear decoder
         this is exact; a nonlinear decoder is linearised at ``codes`` (B, C) (default zero):
-        ``D(c') ~ (D(c) - J c) + J c'``. ``scales`` (B,) (:meth:`depth_scales`) multiply each image's depth at
-        every code: proximity ``a / (d + a)`` read with the average depth ``s a`` is depth ``s d`` (Eq. 4)."""
+        ``D(c') ~ (D(c) - J c) + J c'``."""
         B = feats[0].shape[0]
         if codes is None:
             codes = feats[0].new_zeros(B, self.code_size)
@@ -201,8 +178,7 @@ class DepthModel:
         for i in range(B):
             c = codes[i].to(feats[0])
             prox0 = [p[i, 0] - torch.einsum("chw,c->hw", J[i], c) for p, J in zip(prox, jac)]  # (h, w) per level
-            a = self.avg_depth * (1.0 if scales is None else float(scales[i]))
-            out.append(LinearDecoder.from_levels(prox0, [J[i] for J in jac], a, [u[i, 0] for u in b]))
+            out.append(LinearDecoder.from_levels(prox0, [J[i] for J in jac], self.avg_depth, [u[i, 0] for u in b]))
         return out
 
     def fit_codes(
@@ -247,7 +223,7 @@ class DepthModel:
         """A canonical frame -> the :class:`Keyframe` (RGB image, canonical camera, linear decoder) that
         :func:`codeslam.sfm.sfm` and the SLAM system optimise."""
         feats = self.features(frame.image[None])
-        decoder = self.linear_decoders(feats, scales=self.depth_scales(frame.image[None], feats))[0]
+        decoder = self.linear_decoders(feats)[0]
         return Keyframe(frame.image.to(self.device), self.camera, decoder, frame.valid)
 
 
@@ -285,13 +261,10 @@ def predict_depth(
         if missing:
             raise CodeSLAMError(f"modes encode and optimise need ground-truth depth; frame {missing[0]} has none")
     out = []
-    a = model.avg_depth
     for f in frames:
         feats = model.features(f.image[None])
         pred = DepthPrediction(f, model.uncertainty(feats)[0][0, 0].cpu())
-        scale = model.depth_scales(f.image[None], feats)
-        a_f = a if scale is None else a * float(scale[0])  # the network's proximity is read at s a (Eq. 4)
-        target = None if f.depth is None else depth_to_prox(f.depth, a_f)[None, None]  # (1, 1, H, W)
+        target = None if f.depth is None else model.target_prox(f.depth)[None, None]  # (1, 1, H, W)
         for mode in modes:
             if mode == "zero":
                 code = feats[0].new_zeros(1, model.code_size)
@@ -300,10 +273,7 @@ def predict_depth(
             else:
                 code = model.fit_codes(feats, target, sigma)
             pred.codes[mode] = code[0].cpu()
-            prox = model.decode(feats, code)[0][0, 0]
-            if scale is not None:  # stored, as every prediction, as proximity at the model's a
-                prox = depth_to_prox(prox_to_depth(prox, a_f), a)
-            pred.prox[mode] = prox.cpu()
+            pred.prox[mode] = model.decode(feats, code)[0][0, 0].cpu()
         out.append(pred)
     return out
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import pytest
 import torch
 
@@ -142,37 +140,3 @@ def test_predict_depth_modes_and_their_requirements():
         predict_depth(model, no_depth, ["optimise"])
     with pytest.raises(CodeSLAMError, match="unknown depth mode"):
         predict_depth(model, frames, ["magic"])
-
-
-def test_a_scale_network_gives_each_image_its_scale_and_the_network_its_shape():
-    """Adapted weights carry the network they started from: every decoder and prediction of the depth model has
-    the adapted network's depth times the per-image factor that makes its mean log zero-code depth the scale
-    network's, at every code (the decoders' average depth is scaled, Eq. 4); without one nothing changes."""
-    own, ref = _model(seed=0), _model(seed=1)
-    composite = DepthModel(own.network, scale_network=ref.network)
-    frame = own.canonical(_frame())
-    img = frame.image[None]
-
-    def mean_log(d: torch.Tensor) -> float:
-        return float(torch.log(d).mean())
-
-    feats = composite.features(img)
-    s = composite.depth_scales(img, feats)
-    assert s.shape == (1,) and abs(float(s[0]) - 1.0) > 1e-3  # two random networks differ in scale
-    assert own.depth_scales(img, feats) is None
-    dec = composite.linear_decoders(feats, scales=s)[0]
-    plain = own.linear_decoders(feats)[0]
-    zero = torch.zeros(dec.code_size)
-    ref_dec = ref.linear_decoders(ref.features(img))[0]
-    assert mean_log(dec.depth(zero, 0)) == pytest.approx(mean_log(ref_dec.depth(zero, 0)), abs=1e-5)
-    code = 0.5 * torch.randn(dec.code_size, generator=torch.Generator().manual_seed(3))
-    torch.testing.assert_close(dec.depth(code, 1), float(s[0]) * plain.depth(code, 1), rtol=1e-5, atol=1e-6)
-    kf = composite.keyframe(frame)  # SfM's keyframes take the same decoder
-    torch.testing.assert_close(kf.decoder.depth(code, 0), dec.depth(code, 0))
-    pred = predict_depth(composite, [frame], ["zero", "optimise"])[0]
-    assert mean_log(pred.depth("zero", composite.avg_depth)) == pytest.approx(mean_log(dec.depth(zero, 0)), abs=1e-4)
-    # fitting the composite to depth d is fitting the network to d / s, then scaling by s
-    shrunk = dataclasses.replace(frame, depth=frame.depth / float(s[0]))
-    own_fit = predict_depth(own, [shrunk], ["optimise"])[0]
-    torch.testing.assert_close(pred.depth("optimise", 1.5), float(s[0]) * own_fit.depth("optimise", 1.5),
-                               rtol=1e-4, atol=1e-5)

@@ -28,9 +28,9 @@ def adapt_command(
     poses: Path | None = typer.Option(None, "--poses", help="Initial camera poses (TUM trajectory file, e.g. "
                                       "from `codeslam slam --out`), matched to the frames by timestamp; "
                                       "default: no motion, estimated in the warm-up."),
-    steps: int | None = typer.Option(None, "--steps", help="Adam steps in all (default 2000)."),
+    steps: int | None = typer.Option(None, "--steps", help="Adam steps in all (default 400)."),
     warmup: int | None = typer.Option(None, "--warmup", help="Steps that estimate motion only (default 100)."),
-    lr: float | None = typer.Option(None, "--lr", help="Learning rate of the network weights (default 1e-4)."),
+    lr: float | None = typer.Option(None, "--lr", help="Learning rate of the network weights (default 1e-5)."),
     seed: int | None = typer.Option(None, "--seed", help="Seed of the frame order."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the run folder's checkpoint."),
     stop_after: int | None = typer.Option(None, "--stop-after", help="Stop (with a checkpoint) after this many "
@@ -90,7 +90,7 @@ def adapt_command(
     source = {"dataset": str(dataset), "frames": indices, "start_weights": str(weights or "default")}
     with progress_bar("adapting", cfg.steps, quiet) as update:
         result = adapt(model.network, torch.stack(images), run_dir, cfg, valid=torch.stack(valid), poses=init,
-                       resume=resume, stop_after=stop_after, source=source, scale_network=model.scale_network,
+                       resume=resume, stop_after=stop_after, source=source,
                        progress=lambda d, n, last: update(d, f"photometric {last.get('photo', float('nan')):.5f}"))
     from codeslam.data.trajectory import Trajectory, write_tum
 

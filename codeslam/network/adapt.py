@@ -24,10 +24,7 @@ momentum kept moving the motions of the other frames and the photometric error g
 (measured on a generator walk).
 
 Monocular photometric consistency does not fix the scale: depth and translations can grow together. The scale
-anchor holds the adaptation frames' scale at the start network's, but views adaptation never saw still drift, so
-the adapted weights also carry the start network (``keep_start_scale``): each image's depth takes its shape from
-the adapted network and its scale from the start network (:meth:`codeslam.depthmodel.DepthModel.depth_scales`).
-Adaptation improves the shape of the depth, not its scale.
+stays the network's (the scale anchor holds it), so adaptation improves the shape of the depth, not its scale.
 
 Everything random (the frame order of each step) comes from ``seed`` and the step, so a resumed run repeats the
 interrupted one. The run folder holds ``checkpoint.safetensors`` (network, codes, motions, brightness, Adam
@@ -75,11 +72,8 @@ MIN_WARP_DEPTH = 0.05
 class AdaptConfig:
     """How :func:`adapt` fine-tunes the network on a video."""
 
-    # Adam steps in all (the warm-up included). With ``lr`` and ``anchor`` the best of the settings measured on
-    # held-out halves of the HoloLens walk and TUM fr1/rpy (docs/results/depth_prior_ablation.md): the depth's
-    # shape (RMSE at each frame's best scale) 0.0789 -> 0.0739 and 0.0938 -> 0.0912, where 400 steps at lr 1e-5
-    # and anchor 10 gave 0.0772 and 0.0937. About 20 minutes for 94 frames on one CPU core.
-    steps: int = 2000
+    # Adam steps in all (the warm-up included).
+    steps: int = 400
     # Steps at the start that move only the motions and brightness, against the start network's zero-code depth
     # (decoded once), so that the network is not fitted to the errors of a wrong initial motion.
     pose_warmup: int = 100
@@ -88,7 +82,7 @@ class AdaptConfig:
     # Frame offsets of the neighbours a target frame is warped into.
     neighbours: tuple[int, ...] = (-2, -1, 1, 2)
     # Adam learning rates: network weights, codes, motions (per unit of the se(3) vector) and brightness.
-    lr: float = 1e-4
+    lr: float = 1e-5
     lr_code: float = 1e-2
     lr_pose: float = 2e-3
     lr_brightness: float = 1e-2
@@ -101,17 +95,11 @@ class AdaptConfig:
     # Weight of the photometric loss of the zero-code depth D(I, 0).
     zero_code_weight: float = 1.0
     # Weight of the anchor 0.5 sum (w - w_start)² / (number of weights), per unit of the photometric loss.
-    anchor: float = 1.0
+    anchor: float = 10.0
     # Weight of the scale anchor: the squared change of each frame's mean log zero-code depth from the start
     # network's. Video alone cannot tell the scale; without this the depth of a mostly rotating camera drifted
     # away (TUM fr1/rpy: median depth ratio 0.98 -> 1.27 in 400 steps).
     scale_anchor: float = 1.0
-    # Store the start network with the adapted one, as its scale network: each image's depth then takes its scale
-    # from the start network and its shape from the adapted one (codeslam.depthmodel.DepthModel.depth_scales).
-    # The scale anchor holds the adaptation frames' scale, not that of views adaptation never saw: measured on
-    # held-out halves (lr 1e-4, anchor 1, 2,000 steps), their zero-code RMSE went 0.1143 -> 0.1147 (HoloLens)
-    # and 0.1251 -> 0.1325 (TUM) as the adapted network predicts, 0.1116 and 0.1231 with the start's scale.
-    keep_start_scale: bool = True
     # Leave out pixels that no motion explains better than the warp (see photometric_loss).
     automask: bool = True
     # Seed of the frame order.
@@ -258,7 +246,6 @@ def adapt(
     stop_after: int | None = None,
     progress: Callable[[int, int, dict], None] | None = None,
     source: dict | None = None,
-    scale_network: CodeNetwork | None = None,
 ) -> AdaptResult:
     """Adapt ``model`` (changed in place) to the video ``images`` and write the run folder ``run_dir``.
 
@@ -273,8 +260,6 @@ def adapt(
         stop_after: stop (with a checkpoint) after this many steps, as if interrupted.
         progress: called as ``progress(done, total, last_logged_terms)`` after every step.
         source: what the frames are (dataset, frame indices), stored with the weights.
-        scale_network: the network whose scale the adapted weights keep (``keep_start_scale``); None: the start
-            network (pass the scale network of weights that were themselves adapted).
     """
     cfg = config or AdaptConfig()
     run_dir = Path(run_dir)
@@ -410,16 +395,10 @@ def adapt(
     with torch.no_grad():
         poses_out = chain_poses(T0.double(), delta.detach().double().index_fill(0, torch.tensor([0], device=dev), 0))
     if finished:
-        scale_model = None
-        if cfg.keep_start_scale:
-            scale_model = scale_network
-            if scale_model is None:
-                scale_model = CodeNetwork(model.config)
-                scale_model.load_state_dict(start)
         save_weights(run_dir / WEIGHTS_NAME, model, extra_metadata={
             "adapted": json.dumps({"adapt": cfg.to_dict(), "frames": N, "source": source or {}}),
             "elapsed_s": f"{elapsed_before + time.perf_counter() - t0:.1f}",
-        }, scale_model=scale_model)
+        })
     return AdaptResult(run_dir, end, finished, last, poses_out.cpu())
 
 

@@ -26,9 +26,6 @@ CHECKPOINT_FORMAT = "codeslam-checkpoint-v1"
 MODEL_PREFIX = "model."
 #: the weights every command loads unless ``--weights FILE`` is given (package data)
 DEFAULT_WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "codeslam_default.safetensors"
-#: Prefix of a second network's tensors in a weights file: the *scale network* of adapted weights (the network
-#: adaptation started from), whose zero-code depth gives each image its scale (:class:`codeslam.depthmodel.DepthModel`).
-SCALE_PREFIX = "scale_network."
 
 _PICKLE_MAGIC = (b"PK\x03\x04", b"\x80")  # torch.save zip archive, raw pickle protocol >= 2
 
@@ -80,20 +77,13 @@ def save_weights(
     model: CodeNetwork,
     config: NetworkConfig | None = None,
     extra_metadata: dict[str, object] | None = None,
-    scale_model: CodeNetwork | None = None,
 ) -> None:
     """Write ``model``'s weights with its config (``config`` defaults to ``model.config``) and ``extra_metadata``
-    (values stored as strings; non-strings as JSON) to ``path``, atomically. ``scale_model`` (same architecture) is
-    stored beside it as the scale network (:data:`SCALE_PREFIX`)."""
+    (values stored as strings; non-strings as JSON) to ``path``, atomically."""
     config = config or model.config
     meta = {k: v if isinstance(v, str) else json.dumps(v) for k, v in (extra_metadata or {}).items()}
     meta.update({"format": WEIGHTS_FORMAT, "config": config.to_json()})
-    tensors = dict(model.state_dict())
-    if scale_model is not None:
-        if scale_model.config != config:
-            raise WeightsError("the scale network must have the same architecture as the network")
-        tensors.update({SCALE_PREFIX + k: v for k, v in scale_model.state_dict().items()})
-    save_tensors(path, tensors, meta)
+    save_tensors(path, dict(model.state_dict()), meta)
 
 
 def read_weights(path: str | os.PathLike) -> tuple[dict[str, torch.Tensor], NetworkConfig, dict[str, str]]:
@@ -133,20 +123,6 @@ def load_model(
     tensors, file_config, _ = read_weights(path)
     if config is not None and config != file_config:
         raise WeightsError(f"{path} holds a different network: {_config_diff(file_config, config)}")
-    main = {k: v for k, v in tensors.items() if not k.startswith(SCALE_PREFIX)}
-    return _network(main, file_config, path, device)
-
-
-def load_scale_model(path: str | os.PathLike, device: torch.device | str = "cpu") -> CodeNetwork | None:
-    """The scale network stored in a weights file (adapted weights; see :func:`save_weights`), in eval mode on
-    ``device``, or None when the file holds none."""
-    tensors, file_config, _ = read_weights(path)
-    scale = {k[len(SCALE_PREFIX):]: v for k, v in tensors.items() if k.startswith(SCALE_PREFIX)}
-    return _network(scale, file_config, f"{path} (its scale network)", device) if scale else None
-
-
-def _network(tensors: dict[str, torch.Tensor], file_config: NetworkConfig, path, device) -> CodeNetwork:
-    """The network of ``file_config`` with ``tensors`` loaded; WeightsError when they do not fit it."""
     model = CodeNetwork(file_config)
     expected = model.state_dict()
     missing = sorted(set(expected) - set(tensors))

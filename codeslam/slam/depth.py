@@ -33,8 +33,7 @@ def network_depth_model(model) -> DepthModelFactory:
         if frame.camera != camera:
             raise CodeSLAMError(f"frame {frame.index} is not in the network's {camera.width}x{camera.height} "
                                 "canonical camera; resample it first")
-        feats = model.features(frame.image[None])
-        return model.linear_decoders(feats, scales=model.depth_scales(frame.image[None], feats))[0]
+        return model.linear_decoders(model.features(frame.image[None]))[0]
 
     return decode
 

@@ -102,25 +102,3 @@ def test_save_is_atomic_on_failure(tmp_path, tiny_config, monkeypatch):
         save_weights(path, model)
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["w.safetensors"]
-
-
-def test_weights_carry_a_scale_network_beside_the_network(tmp_path, tiny_config):
-    """Adapted weights hold the network they started from under its own prefix: load_model reads the network
-    alone, load_scale_model the other (None for plain weights); another architecture is refused."""
-    from codeslam.network.weights import load_scale_model
-
-    torch.manual_seed(0)
-    net = CodeNetwork(tiny_config())
-    torch.manual_seed(1)
-    ref = CodeNetwork(tiny_config())
-    path = tmp_path / "adapted.safetensors"
-    save_weights(path, net, scale_model=ref)
-    loaded, scale = load_model(path), load_scale_model(path)
-    assert all(torch.equal(v, net.state_dict()[k]) for k, v in loaded.state_dict().items())
-    assert all(torch.equal(v, ref.state_dict()[k]) for k, v in scale.state_dict().items())
-    assert not scale.training
-    save_weights(tmp_path / "plain.safetensors", net)
-    assert load_scale_model(tmp_path / "plain.safetensors") is None
-    with pytest.raises(WeightsError, match="same architecture"):
-        save_weights(tmp_path / "x.safetensors", net, scale_model=CodeNetwork(tiny_config(code_size=4)))
-    assert not (tmp_path / "x.safetensors").exists()

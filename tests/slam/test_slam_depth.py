@@ -46,13 +46,6 @@ def test_network_depth_model_decodes_like_the_network():
     other = dataclasses.replace(frame, camera=canonical_camera(64, 48, hfov_deg=70))
     with pytest.raises(CodeSLAMError, match="canonical camera"):
         network_depth_model(model)(other)
-    # adapted weights (a scale network beside the network): the keyframe's depth takes the other's scale
-    torch.manual_seed(1)
-    composite = DepthModel(model.network, scale_network=CodeNetwork(cfg).eval())
-    scaled = network_depth_model(composite)(frame)
-    s = float(composite.depth_scales(frame.image[None], feats)[0])
-    assert abs(s - 1.0) > 1e-3 and scaled.avg_depth == pytest.approx(s * cfg.avg_depth)
-    torch.testing.assert_close(scaled.depth(code, 0), s * dec.depth(code, 0), rtol=1e-5, atol=1e-6)
 
 
 def test_holes_are_filled_from_their_surroundings_not_with_one_depth():
