@@ -136,6 +136,16 @@ class _Views:
     # rectification, and the input camera whose rows were read out
 
 
+def _scaled_translation(T: torch.Tensor, s: float | None) -> torch.Tensor:
+    """``T`` (4, 4) with its translation times ``s``, as a new tensor (records may share one); ``T`` itself when
+    ``s`` is None or 1."""
+    if s is None or s == 1.0:
+        return T
+    T = T.clone()
+    T[:3, 3] *= s
+    return T
+
+
 def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Frame:
     """``frame`` (in the network's camera) as a global shutter at mid-readout would have seen it; ``sensor``: the
     input camera, whose rows were read out one after the other while the camera turned by ``readout``."""
@@ -528,15 +538,9 @@ class CodeSLAM:
         0.083 -> 0.086 m, so later solves leave the frames as tracked."""
         if not scale:
             return
-        for rec in self._records:
-            s = scale.get(rec.keyframe_id)
-            if s is not None and s != 1.0:
-                rec.T_kf = rec.T_kf.clone()
-                rec.T_kf[:3, 3] *= s
-            s = scale.get(rec.tracked_id)
-            if s is not None and s != 1.0:
-                rec.T_tracked = rec.T_tracked.clone()
-                rec.T_tracked[:3, 3] *= s
+        for rec in self._records:  # the pose now and as tracked, each in its keyframe's depth units
+            rec.T_kf = _scaled_translation(rec.T_kf, scale.get(rec.keyframe_id))
+            rec.T_tracked = _scaled_translation(rec.T_tracked, scale.get(rec.tracked_id))
 
     def finish(self) -> None:
         """Wait for the mapping thread to finish its work and stop it (parallel mode; a no-op otherwise)."""
