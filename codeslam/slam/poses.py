@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import torch
 
+from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+
 
 def project_to_se3(T: torch.Tensor) -> torch.Tensor:
     """(..., 4, 4) -> the same transforms in float64 on the CPU with the rotation replaced by the closest rotation
@@ -25,3 +27,20 @@ def project_to_se3(T: torch.Tensor) -> torch.Tensor:
     out[..., :3, :3] = (U * S.unsqueeze(-2)) @ Vt
     out[..., 3, :] = torch.tensor([0.0, 0.0, 0.0, 1.0], dtype=T.dtype)
     return out
+
+
+def spread_correction(T_ref: torch.Tensor, T_next: torch.Tensor, fraction: torch.Tensor) -> torch.Tensor:
+    """Poses of the frames between two keyframes, moved part of the way from where their own keyframe puts them
+    to where the next keyframe does: T_ref, T_next (n, 4, 4), fraction (n,) in [0, 1] ->
+    ``T_ref Exp(f Log(T_ref^-1 T_next))`` (n, 4, 4), float64 on the CPU and projected onto SE(3).
+
+    ``T_ref`` is a frame's pose through its reference keyframe (``T_wk T_kf``); ``T_next`` through the next
+    keyframe, which was tracked against the same reference (``T_wk' T_k'k T_kf``). The two differ by what the
+    window solves changed between the two keyframes after tracking; the frame takes that change in proportion to
+    its time between them (``fraction`` 0 at its keyframe, 1 at the next), so the trajectory does not jump where
+    the frames switch keyframe. Written by hand: the geodesic between two poses, nothing a library gives."""
+    T_ref = T_ref.to(dtype=torch.float64, device="cpu")
+    T_next = T_next.to(dtype=torch.float64, device="cpu")
+    xi = se3_log(se3_inverse(T_ref) @ T_next)  # (n, 6)
+    f = fraction.to(torch.float64).clamp(0.0, 1.0).unsqueeze(-1)
+    return project_to_se3(T_ref @ se3_exp(f * xi))

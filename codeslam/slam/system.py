@@ -23,8 +23,9 @@ map within seconds):
   frame's pose is marked ``tracked``, ``relocalised`` or ``predicted``.
 
 Every frame's pose is kept relative to its reference keyframe (``T_wc = T_wk T_kf``), so the trajectory follows
-the keyframes when the window optimisation moves them. The core never opens a file: reading, timing and writing
-results belong to :mod:`codeslam.slam.pipeline`.
+the keyframes when the window optimisation moves them; the final trajectory spreads what the window changed
+between two keyframes over the frames between them (``SLAMConfig.trajectory``). The core never opens a file:
+reading, timing and writing results belong to :mod:`codeslam.slam.pipeline`.
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ from codeslam.slam.features import Features, scaled_camera
 from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
 from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult
-from codeslam.slam.poses import project_to_se3
+from codeslam.slam.poses import project_to_se3, spread_correction
 from codeslam.slam.readout import CANDIDATES, ReadoutChoice
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
 from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport
@@ -766,11 +767,47 @@ class CodeSLAM:
 
     # ---- results --------------------------------------------------------------------------------------------
     def trajectory(self) -> Trajectory:
-        """Every processed frame's final pose ``T_wk T_kf`` (its keyframe's latest pose)."""
+        """Every processed frame's final pose: ``T_wk T_kf`` (its keyframe's latest pose), and with the config's
+        ``trajectory: interpolated`` the frames between two keyframes moved toward the next one's
+        (:meth:`_interpolated`)."""
         if not self._records:
             raise CodeSLAMError("no frame has been processed")
-        return Trajectory(np.array([r.timestamp for r in self._records]),
-                          torch.stack([self._pose(r) for r in self._records]))
+        poses = torch.stack([self._pose(r) for r in self._records])
+        if self.config.trajectory == "interpolated":
+            poses = self._interpolated(poses)
+        return Trajectory(np.array([r.timestamp for r in self._records]), poses)
+
+    def _interpolated(self, poses: torch.Tensor) -> torch.Tensor:
+        """``poses`` (one per record, ``T_wk T_kf``) with each run of frames tracked against keyframe k, between
+        k's frame and the frame that became keyframe k + 1 (tracked against k too, in the same map segment),
+        spread toward the poses that k + 1 implies (:func:`~codeslam.slam.poses.spread_correction`), by time.
+        Frames kept in a keyframe other than the one they were tracked against, and keyframes, keep their reference
+        poses; so does every frame where k and k + 1 lie in different map segments."""
+        poses = poses.clone()
+        for k in range(len(self.keyframes) - 1):
+            a, b = self._keyframe_record.get(k), self._keyframe_record.get(k + 1)
+            if a is None or b is None:
+                continue
+            nxt = self._records[b]
+            if nxt.tracked_id != k or self.keyframes[k + 1].segment != self.keyframes[k].segment:
+                continue
+            # the frames tracked against k before keyframe k + 2: with parallel mapping some come after k + 1's
+            # frame, tracked on against k while k + 1 was decoded; they take the whole change (fraction 1)
+            end = self._keyframe_record.get(k + 2, len(self._records))
+            inner = [i for i in range(a + 1, end) if i != b and self._records[i].keyframe_id == k
+                     and self._records[i].tracked_id == k]
+            if not inner:
+                continue
+            # keyframe k where keyframe k + 1's final pose and its tracking against k put it
+            T_k_next = self.keyframes[k + 1].T_wc @ se3_inverse(nxt.T_tracked)
+            t0, t1 = self._records[a].timestamp, nxt.timestamp
+            if t1 > t0:
+                f = [(self._records[i].timestamp - t0) / (t1 - t0) for i in inner]
+            else:  # no usable timestamps: by place
+                f = [(i - a) / (b - a) for i in inner]
+            T_kf = torch.stack([self._records[i].T_kf for i in inner])
+            poses[inner] = spread_correction(poses[inner], T_k_next @ T_kf, torch.tensor(f, dtype=torch.float64))
+        return poses
 
     def keyframe_trajectory(self) -> Trajectory:
         """The keyframes' final poses."""

@@ -54,6 +54,7 @@ def test_resolved_config_round_trips_through_yaml(tmp_path):
         "- just\n- a list\n",
         "tracker: {min_overlap: 2}\n",
         "tracker: {rolling_shutter_readout: 1.5}\n",  # more than the frame interval
+        "trajectory: smoothed\n",
         "{unbalanced\n",
     ],
 )

@@ -174,7 +174,8 @@ def test_the_frames_before_the_second_keyframe_follow_the_first_solves_scale():
     from codeslam.slam.config import SLAMConfig
 
     seq = MemorySequence(preset_frames(5, 20, "handheld", 10.0))
-    system = CodeSLAM(SLAMConfig(), standin_depth_model(code_offset_scale=0.3))
+    # the poses as tracked and rescaled: 'interpolated' would move them toward the second keyframe's
+    system = CodeSLAM(SLAMConfig(trajectory="reference"), standin_depth_model(code_offset_scale=0.3))
     run = run_slam(seq, system, seq.frames[0].camera)
     final = torch.as_tensor(system.trajectory().poses, dtype=D)
     second = next(r for r in run.results if r.is_keyframe and r.keyframe_id == 1)
@@ -190,3 +191,30 @@ def test_the_frames_before_the_second_keyframe_follow_the_first_solves_scale():
         torch.testing.assert_close(now[:3, 3], s0 * tracked[:3, 3])
     assert all(not r.window.depth_scale for r in run.results  # later solves leave the frames as tracked
                if r.is_keyframe and r.window is not None and r.keyframe_id > 1)
+
+
+def test_the_interpolated_trajectory_spreads_each_keyframes_correction_over_the_frames_before_it():
+    # The frames tracked against keyframe k sit at T_wk T_kf ('reference'): where they switch to keyframe k + 1
+    # they jump by what the window changed between k and k + 1 after tracking. 'interpolated' spreads that change
+    # over them; the keyframes and the frames after the last keyframe stay where they are.
+    from slam_scene import preset_frames
+
+    from codeslam.eval.slam_run import evaluate_run
+    from codeslam.slam.config import SLAMConfig
+    from codeslam.slam.pipeline import ground_truth
+
+    seq = MemorySequence(preset_frames(5, 20, "handheld", 10.0))
+    system = CodeSLAM(SLAMConfig(), standin_depth_model(code_offset_scale=0.3))
+    run = run_slam(seq, system, seq.frames[0].camera)
+    interpolated = system.trajectory()
+    system.config = dataclasses.replace(system.config, trajectory="reference")
+    reference = system.trajectory()
+    kf = [r.index for r in run.results if r.is_keyframe]
+    assert len(kf) >= 3
+    moved = [i for i in range(len(seq)) if not torch.equal(interpolated.poses[i], reference.poses[i])]
+    assert moved and not set(moved) & set(kf) and max(moved) < kf[-1]
+    # no jumps at the switches: the frame-to-frame error shrinks
+    gt = ground_truth(seq, range(len(seq)))
+    e_int, e_ref = evaluate_run(interpolated, gt), evaluate_run(reference, gt)
+    print({k: (round(e_ref[k], 5), round(e_int[k], 5)) for k in ("ate_sim3_rmse", "rpe_trans_sim3_rmse")})
+    assert e_int["rpe_trans_sim3_rmse"] < e_ref["rpe_trans_sim3_rmse"]

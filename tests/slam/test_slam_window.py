@@ -15,7 +15,7 @@ from codeslam.sfm.keyframes import Keyframe
 from codeslam.sfm.solver import levenberg_marquardt
 from codeslam.sfm.variables import CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
 from codeslam.slam.depth import standin_depth_model
-from codeslam.slam.poses import project_to_se3
+from codeslam.slam.poses import project_to_se3, spread_correction
 from codeslam.slam.window import MapKeyframe, SlidingWindow, schur_complement
 
 D = torch.float64
@@ -108,6 +108,20 @@ def test_project_to_se3_returns_the_closest_rotation():
     torch.testing.assert_close(torch.det(R), torch.ones(4, dtype=D))
     torch.testing.assert_close(P, T, atol=5e-4, rtol=0)
     torch.testing.assert_close(project_to_se3(T), T)
+
+
+def test_spread_correction_moves_a_frame_along_the_geodesic_by_its_fraction():
+    gen = torch.Generator().manual_seed(3)
+    T_ref = se3_exp(torch.randn(3, 6, generator=gen, dtype=D))
+    delta = se3_exp(0.2 * torch.randn(6, generator=gen, dtype=D))  # what the window changed, in the keyframe
+    T_kf = se3_exp(0.1 * torch.randn(3, 6, generator=gen, dtype=D))
+    T_next = T_ref @ se3_inverse(T_kf) @ delta @ T_kf  # the same frames through the next keyframe
+    out = spread_correction(T_ref, T_next, torch.tensor([0.0, 1.0, 0.5], dtype=D))
+    torch.testing.assert_close(out[0], T_ref[0])
+    torch.testing.assert_close(out[1], T_next[1])
+    half = se3_inverse(T_ref[2]) @ out[2]  # half way: twice it is the whole change
+    torch.testing.assert_close(half @ half, se3_inverse(T_ref[2]) @ T_next[2])
+    torch.testing.assert_close(spread_correction(T_ref, T_ref, torch.full((3,), 0.3, dtype=D)), T_ref)
 
 
 def _window(frames, cfg, T_wc):
