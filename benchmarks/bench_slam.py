@@ -12,11 +12,14 @@ memory, by default the walk at 10 frames/s) and each mapping mode it runs the wh
 * ATE Sim(3) and the orientation error after the best rotation alignment, so a speed-up is read beside what it
   costs;
 
-and the ratios parallel / sequential of the whole-loop rate. Nothing is asserted.
+and the ratios parallel / sequential of the whole-loop rate. With ``--config A.yaml B.yaml`` every run is made
+once per configuration (YAML overlays of the defaults; ``default`` names the defaults themselves), and the
+ratios of each to the first are printed too: an A/B comparison measured in one run. Nothing is asserted.
 
     python benchmarks/bench_slam.py [--dataset DIR] [--frames N] [--preset walk --preset-fps 10
                                     --preset-frames 60 --size 320x240] [--depth-model network|standin]
                                     [--threads 2] [--modes sequential parallel] [--weights W]
+                                    [--config default B.yaml ...]
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
     import torch
 
     from codeslam.eval.slam_run import evaluate_run_if_possible
-    from codeslam.slam.config import SLAMConfig
+    from codeslam.slam.config import load_config
     from codeslam.slam.pipeline import ground_truth, run_slam
     from codeslam.slam.system import CodeSLAM
 
@@ -71,7 +74,8 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
         from codeslam.slam.depth import standin_depth_model
 
         factory, camera = standin_depth_model(), canonical_camera()
-    system = CodeSLAM(SLAMConfig(), factory, parallel=(mode == "parallel"))
+    config = load_config(None if args["config"] == "default" else args["config"])
+    system = CodeSLAM(config, factory, parallel=(mode == "parallel"))
     t0 = time.perf_counter()
     run = run_slam(seq, system, camera, list(range(n)))
     wall = time.perf_counter() - t0
@@ -115,9 +119,13 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--weights", default=None, help="network weights (default: the shipped ones)")
     ap.add_argument("--modes", nargs="+", default=["sequential", "parallel"])
+    ap.add_argument("--config", nargs="+", default=["default"],
+                    help="SLAM configuration overlays to compare ('default': the defaults)")
     ap.add_argument("--json", default=None, help="also write the measurements here")
     a = ap.parse_args()
-    args = {"threads": a.threads, "depth_model": a.depth_model, "weights": a.weights}
+    for c in a.config:
+        if c != "default" and not Path(c).is_file():
+            sys.exit(f"bench_slam: config {c} not found")
     specs = []
     if a.dataset:
         specs.append(({"kind": "dataset", "path": a.dataset, "limit": a.frames}, Path(a.dataset).name))
@@ -127,7 +135,10 @@ def main() -> None:
     table = {}
     for spec, name in specs:
         for mode in a.modes:
-            table[(name, mode)] = measure(spec, mode, args)
+            for c in a.config:
+                args = {"threads": a.threads, "depth_model": a.depth_model, "weights": a.weights, "config": c}
+                label = mode if len(a.config) == 1 else f"{mode} {Path(c).stem}"
+                table[(name, label)] = measure(spec, mode, args)
     print(f"depth model {a.depth_model}, weights {a.weights or 'shipped'}, {a.threads} torch thread(s)")
     cols = [f"{name} {mode}" for name, mode in table]
     print(f"{'':24s}" + "".join(f"{c:>28s}" for c in cols))
@@ -142,10 +153,16 @@ def main() -> None:
     for st in PER_FRAME + PER_KEYFRAME:
         vals = [r["stages"][st] for r in table.values()]
         print(f"{st + ' ms med/p90':24s}" + "".join(f"{f'{m:.1f} / {p:.1f}':>28s}" for m, p in vals))
+    tags = [""] if len(a.config) == 1 else [f" {Path(c).stem}" for c in a.config]
     for _, name in specs:
-        if (name, "sequential") in table and (name, "parallel") in table:
-            r = table[(name, "parallel")]["fps"] / table[(name, "sequential")]["fps"]
-            print(f"{name}: parallel / sequential frames per second = {r:.2f}")
+        for tag in tags:
+            if (name, "sequential" + tag) in table and (name, "parallel" + tag) in table:
+                r = table[(name, "parallel" + tag)]["fps"] / table[(name, "sequential" + tag)]["fps"]
+                print(f"{name}{tag}: parallel / sequential frames per second = {r:.2f}")
+        for mode in a.modes:
+            for tag in tags[1:]:
+                r = table[(name, mode + tag)]["fps"] / table[(name, mode + tags[0])]["fps"]
+                print(f"{name} {mode}: {tag.strip()} / {tags[0].strip()} frames per second = {r:.2f}")
     if a.json:
         Path(a.json).write_text(json.dumps({f"{k[0]} {k[1]}": v for k, v in table.items()}, indent=1))
 

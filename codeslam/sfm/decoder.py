@@ -102,6 +102,29 @@ class LinearDecoder:
         """code (C,) -> (H_l, W_l) depth in metres (Eq. 4 inverted, clamped proximity)."""
         return prox_to_depth(self.prox(code, level), self.avg_depth)
 
+    def principal(self, k: int) -> tuple[LinearDecoder, torch.Tensor | None]:
+        """The decoder restricted to the ``k`` directions of its code that move the finest level's proximity
+        most: ``(decoder', U)`` with U (C, k) the leading eigenvectors of ``J_0 J_0^T`` (orthonormal, largest
+        eigenvalue first) and ``decoder'`` the decoder of a code z (k,) with ``prox'_l(z) = prox_l(U z)`` on every
+        level. As U is orthonormal, ``|z|^2 = |U z|^2``: the VAE's code prior keeps its form. ``(self, None)``
+        when ``k >= C``.
+
+        Written by hand (a change of variables) for a measured reason: the window's normal equations cost C^2 per
+        pixel and pair, while the shipped network's J_0 has 99.4% of its energy in 32 of its 128 directions and
+        99.95% in 64 (TUM fr1/rpy and the HoloLens walk, three frames each)."""
+        C = self.code_size
+        if k >= C:
+            return self, None
+        if k < 1:
+            raise CodeSLAMError(f"a code subspace needs at least one direction, got {k}")
+        J = self.levels[0].jac.reshape(C, -1).to(torch.float64)
+        _, vecs = torch.linalg.eigh(J @ J.T)  # ascending eigenvalues
+        U = vecs[:, -k:].flip(1)  # (C, k), largest first
+        Ut = U.to(self.levels[0].jac.dtype)
+        levels = tuple(DecoderLevel(lv.prox0, torch.einsum("ck,chw->khw", Ut, lv.jac), lv.uncertainty)
+                       for lv in self.levels)
+        return LinearDecoder(levels, self.avg_depth), U.to(self.levels[0].jac.dtype)
+
     def to(self, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> LinearDecoder:
         def cv(t):
             return None if t is None else t.to(dtype=dtype, device=device)

@@ -292,6 +292,17 @@ class WindowConfig:
     depth_scale_sigma: float = 0.3
     """Prior on each keyframe's mean log depth at its zero-code value (:mod:`codeslam.sfm.scale_prior`): how far
     (in log depth) the window may move a keyframe's scale from the network's prediction; 0 switches it off."""
+    code_directions: int = 64
+    """Each keyframe's code is optimised in the span of this many leading directions of its decoder's Jacobian
+    (:meth:`codeslam.sfm.decoder.LinearDecoder.principal`; 0, or the code size or more: the whole code). The
+    tracker and window see a code of this size; the map's files hold the network's code. The window's normal
+    equations cost the code size squared per pixel and pair, and the shipped network's 128 directions carry
+    99.95% of J_0's energy in their leading 64. Measured (docs/results/slam_table.md, sixth session of
+    2026-11-26): TUM fr1/rpy, 1 thread, 3.10 -> 4.83 frames/s, window median 1630 -> 871 ms, marginalisation
+    208 -> 104 ms per keyframe; ATE Sim(3) at 64 against the whole code (1 thread, one run each, network): TUM
+    0.0160 -> 0.0147 m, HoloLens walk 0.1376 -> 0.1448 m (5.04 -> 4.22 deg), generator walk 0.0607 -> 0.0652,
+    hand-held 0.0054 -> 0.0058, corridor 0.2471 -> 0.2381, fast turns 0.0146 -> 0.0142 and 0.0145 -> 0.0147 m. At
+    32 (99.4%) the HoloLens walk went to 0.603 m, 15.6 deg."""
     rollback: bool = True
     """Undo a window solve that fails :meth:`SlidingWindow.check`, and one after which the next frame cannot be
     tracked while it could be against the map before the solve."""
@@ -319,6 +330,8 @@ class WindowConfig:
             raise ConfigError(f"window.min_pair_overlap must lie in [0, 1], got {self.min_pair_overlap}")
         if not self.depth_scale_sigma >= 0:
             raise ConfigError(f"window.depth_scale_sigma must be >= 0, got {self.depth_scale_sigma}")
+        if not (isinstance(self.code_directions, int) and self.code_directions >= 0):
+            raise ConfigError(f"window.code_directions must be an integer >= 0, got {self.code_directions}")
         if self.sfm.rolling_shutter:  # the window's marginalisation and the tracker have no readout rotations
             raise ConfigError("window.sfm.rolling_shutter is supported by `codeslam sfm` only, not in SLAM")
 

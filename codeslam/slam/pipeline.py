@@ -147,7 +147,8 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
         "marginalised": sum(r.marginalised_id is not None for r in res),
         "width": run.camera.width,
         "height": run.camera.height,
-        "code_size": int(run.keyframes[0].code.shape[0]),
+        "code_size": int(run.keyframes[0].network_code.shape[0]),
+        "code_directions": int(run.keyframes[0].code.shape[0]),
         "fps": run.fps,
         "fps_with_io": n / run.wall_s if run.wall_s > 0 else math.inf,
         "process_s": run.process_s,
@@ -264,7 +265,7 @@ def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: Pinh
         "frame_index": np.array([k.frame_index for k in keyframes], dtype=np.int64),
         "timestamp": np.array([k.timestamp for k in keyframes], dtype=np.float64),
         "T_wc": np.stack([k.T_wc.numpy() for k in keyframes]),  # (K, 4, 4)
-        "code": np.stack([k.code.detach().cpu().double().numpy() for k in keyframes]),  # (K, C)
+        "code": np.stack([k.network_code.detach().cpu().double().numpy() for k in keyframes]),  # (K, C)
         "depth": depths,
         "image": np.stack([_rgb(k) for k in keyframes]),  # (K, 3, H, W) in [0, 1]
         "camera": np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height]),

@@ -687,9 +687,12 @@ class CodeSLAM:
         if tuple(decoder.levels[0].prox0.shape) != (H, W):
             raise CodeSLAMError(f"the depth model's output is {tuple(decoder.levels[0].prox0.shape)}, the frame "
                                 f"{(H, W)}")
-        if self.keyframes and decoder.code_size != self.keyframes[0].code.shape[0]:  # keyframe 0 is never removed
+        if self.keyframes and decoder.code_size != self.keyframes[0].network_code.shape[0]:  # keyframe 0 stays
             raise CodeSLAMError("the depth model changed its code size between keyframes")
         decoder = decoder.to(dtype=self.dtype, device=self.device)
+        basis = None
+        if self.config.window.code_directions > 0:  # the code's leading directions only (WindowConfig)
+            decoder, basis = decoder.principal(self.config.window.code_directions)
         image = frame.image.to(dtype=self.dtype, device=self.device)  # RGB kept for the map's colours
         code = torch.zeros(decoder.code_size, dtype=self.dtype, device=self.device)
         depth_zero = decoder.depth(code, 0).detach().cpu().float()
@@ -700,6 +703,7 @@ class CodeSLAM:
             T_wc=project_to_se3(T_wc), code=code, depth_zero=depth_zero,
             uncertainty=None if b is None else b.detach().cpu().float(),
             depth_gt=None if frame.depth is None else frame.depth.detach().cpu().float(), segment=segment,
+            code_basis=basis,
         )
         if views.features is not None and len(views.features) > 0:
             kf.sparse = KeyframeFeatures(views.features, self.sparse.points(views.features, depth_zero))

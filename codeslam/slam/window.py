@@ -73,6 +73,8 @@ class MapKeyframe:
         depth_zero, uncertainty: (H, W) the network's zero-code depth and Laplace scale b (proximity units) at
             the finest level, kept for reports; depth_gt: (H, W) the dataset's depth when it has one.
         segment: the map segment the keyframe belongs to (a new one starts after tracking was lost).
+        code_basis: (C, k) when the code is optimised in a subspace of the network's code
+            (``window.code_directions``): the network's code is ``code_basis @ code``; None otherwise.
     """
 
     id: int
@@ -87,6 +89,12 @@ class MapKeyframe:
     uncertainty: torch.Tensor | None = None
     depth_gt: torch.Tensor | None = None
     segment: int = 0
+    code_basis: torch.Tensor | None = None
+
+    @property
+    def network_code(self) -> torch.Tensor:
+        """(C,) the keyframe's code in the network's coordinates."""
+        return self.code if self.code_basis is None else self.code_basis @ self.code.to(self.code_basis.dtype)
 
     @property
     def active(self) -> bool:

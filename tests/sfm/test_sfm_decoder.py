@@ -53,3 +53,26 @@ def test_from_levels_accepts_network_shapes_and_rejects_mismatches():
                        DecoderLevel(torch.rand(3, 6), torch.rand(4, 3, 6))), 2.0)
     with pytest.raises(CodeSLAMError):
         LinearDecoder((DecoderLevel(torch.rand(8, 12), torch.rand(4, 8, 12)),), -1.0)
+
+
+def test_principal_keeps_the_codes_leading_directions_on_every_level():
+    g = torch.Generator().manual_seed(2)
+    dec = standin_decoder(0.3 + 0.4 * torch.rand(24, 32, generator=g, dtype=D), 12, 3, 2.0,
+                          image=torch.rand(24, 32, generator=g, dtype=D))
+    red, U = dec.principal(5)
+    assert red.code_size == 5 and U.shape == (12, 5)
+    torch.testing.assert_close(U.T @ U, torch.eye(5, dtype=D))
+    z = torch.randn(5, generator=g, dtype=D)
+    for lvl in range(3):  # the same proximity as the network's code U z, on every level
+        torch.testing.assert_close(red.prox(z, lvl), dec.prox(U @ z, lvl))
+        assert red.levels[lvl].uncertainty is dec.levels[lvl].uncertainty
+    # the kept directions are those the finest proximity follows most: what is left of J_0 outside their span is
+    # no more than outside any other 5-dimensional subspace (here a random one)
+    J = dec.levels[0].jac.reshape(12, -1)
+    left = (J - U @ (U.T @ J)).square().sum()
+    Q, _ = torch.linalg.qr(torch.randn(12, 5, generator=g, dtype=D))
+    assert left <= (J - Q @ (Q.T @ J)).square().sum()
+    assert float(left) < float(J.square().sum())
+    assert dec.principal(12) == (dec, None) and dec.principal(40) == (dec, None)
+    with pytest.raises(CodeSLAMError):
+        dec.principal(0)

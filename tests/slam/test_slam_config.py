@@ -55,6 +55,7 @@ def test_resolved_config_round_trips_through_yaml(tmp_path):
         "tracker: {min_overlap: 2}\n",
         "tracker: {rolling_shutter_readout: 1.5}\n",  # more than the frame interval
         "trajectory: smoothed\n",
+        "window: {code_directions: -1}\n",
         "{unbalanced\n",
     ],
 )

@@ -176,3 +176,27 @@ def test_the_motion_priors_interval_runs_from_the_last_tracked_frame():
     assert system._since_tracked(SimpleNamespace(timestamp=1.1)) == pytest.approx(0.1)
     system._records += [_FrameRecord(i, 1.0 + 0.1 * i, 0, eye, False, None, 0, eye) for i in (1, 2, 3)]
     assert system._since_tracked(SimpleNamespace(timestamp=1.4)) == pytest.approx(0.4)
+
+
+def test_codes_in_the_decoders_leading_directions(tmp_path):
+    # window.code_directions: the tracker and window see a code of that size; the map's files the network's
+    import numpy as np
+
+    from codeslam.slam.pipeline import write_keyframes
+
+    frames = synth_frames(3, 16, 7.5)
+    seq = MemorySequence(frames)
+    system = CodeSLAM(small_config(size=3, code_directions=8), standin_depth_model(num_levels=3))
+    run = run_slam(seq, system, frames[0].camera)
+    ev = evaluate_run(run.trajectory, ground_truth(seq, range(len(seq))))
+    assert all(r.tracking_ok for r in run.results)
+    assert ev["ate_sim3_rmse"] < 0.25 * ev["no_motion_ate_rmse_aligned"]
+    moved = [k for k in run.keyframes if float(k.code.abs().max()) > 0]
+    assert moved  # the window did move codes in the subspace
+    for k in run.keyframes:
+        assert k.code.shape == (8,) and k.code_basis.shape == (32, 8)
+        torch.testing.assert_close(k.network_code, k.code_basis @ k.code)
+    write_keyframes(tmp_path / "kf.npz", run.keyframes, frames[0].camera)
+    codes = np.load(tmp_path / "kf.npz")["code"]
+    assert codes.shape == (len(run.keyframes), 32)
+    np.testing.assert_allclose(codes[-1], run.keyframes[-1].network_code.double().numpy())
