@@ -141,7 +141,8 @@ def main() -> None:
                 table[(name, label)] = measure(spec, mode, args)
     print(f"depth model {a.depth_model}, weights {a.weights or 'shipped'}, {a.threads} torch thread(s)")
     cols = [f"{name} {mode}" for name, mode in table]
-    print(f"{'':24s}" + "".join(f"{c:>28s}" for c in cols))
+    w = max(28, 2 + max(len(c) for c in cols))  # column width: the longest heading and two spaces
+    print(f"{'':24s}" + "".join(f"{c:>{w}s}" for c in cols))
     rows = [("frames", "frames", "{:d}"), ("frames/s (whole loop)", "fps", "{:.2f}"),
             ("frames/s (system)", "fps_system", "{:.2f}"), ("keyframes", "keyframes", "{:d}"),
             ("map updates/s", "updates_per_s", "{:.2f}"), ("failed frames", "failed", "{:d}"),
@@ -149,10 +150,10 @@ def main() -> None:
             ("orientation deg", "rot_deg", "{:.2f}")]
     for label, key, fmt in rows:
         vals = [r.get(key) for r in table.values()]
-        print(f"{label:24s}" + "".join(f"{(fmt.format(v) if v is not None else 'n/a'):>28s}" for v in vals))
+        print(f"{label:24s}" + "".join(f"{(fmt.format(v) if v is not None else 'n/a'):>{w}s}" for v in vals))
     for st in PER_FRAME + PER_KEYFRAME:
         vals = [r["stages"][st] for r in table.values()]
-        print(f"{st + ' ms med/p90':24s}" + "".join(f"{f'{m:.1f} / {p:.1f}':>28s}" for m, p in vals))
+        print(f"{st + ' ms med/p90':24s}" + "".join(f"{f'{m:.1f} / {p:.1f}':>{w}s}" for m, p in vals))
     tags = [""] if len(a.config) == 1 else [f" {Path(c).stem}" for c in a.config]
     for _, name in specs:
         for tag in tags:
