@@ -67,7 +67,8 @@ class MapKeyframe:
         keyframe: image (RGB or grey), camera and linear depth decoder (the decoder is dropped once the keyframe
             is marginalised; its final depth is kept in ``depth``).
         T_wc: (4, 4) float64 CPU pose, updated by every window optimisation until marginalised.
-        code: (C,) depth code (solver dtype and device), likewise.
+        code: (C,) depth code (solver dtype and device), likewise; (k,) in ``code_basis``'s coordinates when that
+            is set.
         depth: (H, W) final depth once marginalised, else None (use :meth:`depth_map`).
         sparse: its ORB keypoints and their 3D points at the current code (None without features).
         depth_zero, uncertainty: (H, W) the network's zero-code depth and Laplace scale b (proximity units) at
