@@ -123,9 +123,14 @@ def main() -> None:
                     help="SLAM configuration overlays to compare ('default': the defaults)")
     ap.add_argument("--json", default=None, help="also write the measurements here")
     a = ap.parse_args()
-    for c in a.config:
-        if c != "default" and not Path(c).is_file():
-            sys.exit(f"bench_slam: config {c} not found")
+    from codeslam.errors import CodeSLAMError
+    from codeslam.slam.config import load_config
+
+    for c in a.config:  # each overlay read once here, so that a bad one stops the bench before any run
+        try:
+            load_config(None if c == "default" else c)
+        except CodeSLAMError as e:
+            sys.exit(f"bench_slam: {e}")
     specs = []
     if a.dataset:
         specs.append(({"kind": "dataset", "path": a.dataset, "limit": a.frames}, Path(a.dataset).name))

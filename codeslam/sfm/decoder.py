@@ -123,7 +123,7 @@ class LinearDecoder:
         Ut = U.to(self.levels[0].jac.dtype)
         levels = tuple(DecoderLevel(lv.prox0, torch.einsum("ck,chw->khw", Ut, lv.jac), lv.uncertainty)
                        for lv in self.levels)
-        return LinearDecoder(levels, self.avg_depth), U.to(self.levels[0].jac.dtype)
+        return LinearDecoder(levels, self.avg_depth), Ut
 
     def to(self, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> LinearDecoder:
         def cv(t):

@@ -798,8 +798,9 @@ class CodeSLAM:
             # the frames tracked against k before keyframe k + 2: with parallel mapping some come after k + 1's
             # frame, tracked on against k while k + 1 was decoded; they take the whole change (fraction 1)
             end = self._keyframe_record.get(k + 2, len(self._records))
-            inner = [i for i in range(a + 1, end) if i != b and self._records[i].keyframe_id == k
-                     and self._records[i].tracked_id == k]
+            # (keyframe k + 1's own record is re-expressed in k + 1, so it is not among them)
+            inner = [i for i in range(a + 1, end)
+                     if self._records[i].keyframe_id == k and self._records[i].tracked_id == k]
             if not inner:
                 continue
             # keyframe k where keyframe k + 1's final pose and its tracking against k put it
