@@ -118,6 +118,43 @@ def test_guided_mask_is_the_distance_test_and_non_finite_predictions_allow_nothi
     assert not allowed[::37].any() and not allowed[5].any() and not allowed[6].any()
 
 
+def _brute_force_match(desc_a, desc_b, allowed, ratio, max_distance):
+    """The match written out plainly: every allowed Hamming distance, the nearest (the lower b on equal
+    distances) and the second nearest, the ratio test, then each b kept for its closest a (the lower a on ties)."""
+    bits = np.unpackbits(desc_a[:, None, :] ^ desc_b[None, :, :], axis=-1).sum(-1)
+    best = {}
+    for a in range(len(desc_a)):
+        cand = sorted((int(bits[a, b]), b) for b in np.nonzero(allowed[a])[0])
+        if not cand or cand[0][0] > max_distance or (len(cand) > 1 and cand[0][0] >= ratio * cand[1][0]):
+            continue
+        d, b = cand[0]
+        if b not in best or d < best[b][0]:
+            best[b] = (d, a)
+    rows = sorted((a, b, d) for b, (d, a) in best.items())
+    return [np.array([r[i] for r in rows], int) for i in range(3)]
+
+
+def test_match_is_the_brute_force_nearest_neighbour_with_ratio_test():
+    rng = np.random.default_rng(5)
+    desc_a = rng.integers(0, 256, (150, 32), dtype=np.uint8)
+    noise = (rng.random((100, 32)) < 0.05) * rng.integers(1, 256, (100, 32), dtype=np.uint8)
+    desc_b = rng.integers(0, 256, (200, 32), dtype=np.uint8)
+    desc_b[:100] = desc_a[:100] ^ noise.astype(np.uint8)  # near copies ...
+    desc_b[100:110] = desc_b[:10]  # ... some twice: equal distances, the ratio test rejects them
+    desc_a[140:150] = desc_a[130:140]  # two a's with one nearest b: the first keeps it
+    uv = rng.uniform(0.0, 200.0, (200, 2))
+    pred = rng.uniform(0.0, 200.0, (150, 2))
+    pred[:100] = uv[:100] + rng.normal(0.0, 3.0, (100, 2))
+    cases = [(None, 0.8, 64), (None, 1.0, 256), (guided_mask(pred, uv, 20.0), 0.8, 64),
+             (guided_mask(pred, uv, 8.0), 0.95, 120), (np.zeros((150, 200), bool), 0.8, 64)]
+    for allowed, ratio, max_distance in cases:
+        ia, ib, d = match(desc_a, desc_b, ratio, max_distance, allowed, with_distances=True)
+        full = np.ones((150, 200), bool) if allowed is None else allowed
+        ta, tb, td = _brute_force_match(desc_a, desc_b, full, ratio, max_distance)
+        assert np.array_equal(ia, ta) and np.array_equal(ib, tb) and np.array_equal(d, td)
+        assert allowed is not None and not allowed.any() or len(ia) > 20
+
+
 def test_no_texture_gives_no_features_and_pnp_refuses():
     orb = ORBExtractor()
     f = orb(np.full((96, 128), 128, np.uint8))
