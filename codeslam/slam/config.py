@@ -37,6 +37,11 @@ class TrackerConfig:
     """Levels visited coarse to fine (0 = finest): the coarse levels widen the basin of convergence (Sec. 4.2)."""
     max_iterations: tuple[int, ...] = (8, 8, 6, 5)
     """Levenberg-Marquardt iterations per visited level (same length as ``pyramid_levels``)."""
+    feature_start_level: int = -1
+    """With a start pose from ORB + PnP (its inlier matches joining the alignment), skip the levels of
+    ``pyramid_levels`` coarser than this one: the matches already put the pose within about a pixel of the
+    feature camera, a quarter pixel at level 0, inside the basin of the finer levels. Frames without such a start
+    (the motion model's guess) visit every level. -1: every frame visits every level."""
     relative_cost_tolerance: float = 1e-3
     """Stop a level when a step lowers the cost by less than this fraction: tracking needs a fraction of a pixel,
     not the mapping's 1e-5 (measured on the generator's rooms: 1e-3 and 1e-5 end within 0.1 mm)."""
@@ -95,6 +100,9 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)
+        if self.feature_start_level != -1 and not 0 <= min(self.pyramid_levels) <= self.feature_start_level:
+            raise ConfigError(f"tracker.feature_start_level must be -1 or a level no finer than the finest of "
+                              f"pyramid_levels {self.pyramid_levels}, got {self.feature_start_level}")
         if not 0.0 <= self.rolling_shutter_readout <= 1.0:
             raise ConfigError("tracker.rolling_shutter_readout must lie in [0, 1] (a fraction of the frame interval), "
                               f"got {self.rolling_shutter_readout}")

@@ -187,9 +187,14 @@ class PhotometricTracker:
         terms = [] if reprojection is None or len(reprojection) == 0 else [reprojection]
         if T_kf_prior is not None and prior_dt is not None and cfg.motion_prior_acceleration > 0:
             terms.append(self._motion_prior(T_kf_prior, prior_dt, dtype, device))  # the motion model, soft
+        levels = list(zip(cfg.pyramid_levels, cfg.max_iterations))
+        started_by_features = (reprojection is not None and min_feature_inliers > 0
+                               and len(reprojection) >= min_feature_inliers)
+        if started_by_features and cfg.feature_start_level >= 0:  # within the fine levels' basin already
+            levels = [(lvl, it) for lvl, it in levels if lvl <= cfg.feature_start_level]
         align = self._align_dedicated if self.solver == "dedicated" else self._align_generic
         state, cost, valid_px, r, sigma, gray_A, iterations = align(keyframe, code, image, camera, valid, state,
-                                                                    layout, terms)
+                                                                    layout, terms, levels)
         result = self._checked(state, valid_px, r, sigma, gray_A, cost, iterations)
         if reprojection is not None and len(reprojection) > 0:  # not the motion prior alone (a frame without matches)
             result.feature_matches = len(reprojection)
@@ -200,8 +205,10 @@ class PhotometricTracker:
         return result
 
     def _align_dedicated(self, keyframe: Keyframe, code: torch.Tensor, image: torch.Tensor, camera: PinholeCamera,
-                         valid: torch.Tensor | None, state: SfMState, layout: VariableLayout, terms: list):
-        """Coarse to fine over :class:`~codeslam.slam.alignment.TrackingProblem` with the keyframe's cached data.
+                         valid: torch.Tensor | None, state: SfMState, layout: VariableLayout, terms: list,
+                         levels: list[tuple[int, int]]):
+        """Coarse to fine over :class:`~codeslam.slam.alignment.TrackingProblem` with the keyframe's cached data,
+        ``levels`` (level, iterations) in order.
         Returns (state, cost, valid (N,), r (N,), sigma, gray_A (N,), iterations) at the finest level."""
         cfg, sfm_cfg = self.cfg, self.sfm_cfg
         reference = self.reference(keyframe, code)
@@ -215,7 +222,7 @@ class PhotometricTracker:
             else:
                 others.append(term)
         iterations = 0
-        for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):  # coarse to fine (Sec. 4.2)
+        for lvl, iters in levels:  # coarse to fine (Sec. 4.2)
             problem = TrackingProblem(reference.levels[lvl], frame.levels[lvl], sfm_cfg, keypoints, others)
             current, report = levenberg_marquardt(problem, current, layout, sfm_cfg, iters)
             iterations += report.iterations
@@ -236,7 +243,8 @@ class PhotometricTracker:
         return self._real_pixels[2]
 
     def _align_generic(self, keyframe: Keyframe, code: torch.Tensor, image: torch.Tensor, camera: PinholeCamera,
-                       valid: torch.Tensor | None, state: SfMState, layout: VariableLayout, terms: list):
+                       valid: torch.Tensor | None, state: SfMState, layout: VariableLayout, terms: list,
+                       levels: list[tuple[int, int]]):
         """The same alignment as a two-frame :class:`~codeslam.sfm.solver.PairProblem` (A = keyframe with its
         depth decoded at ``code``, B = the frame), its levels rebuilt for every frame; same returns as
         :meth:`_align_dedicated`."""
@@ -245,14 +253,14 @@ class PhotometricTracker:
         fixed_depth = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, code),
                                keyframe.valid)
         frame = Keyframe(image.to(dtype=dtype, device=device), camera, None, valid)  # no depth: B of the pair only
-        levels = build_levels([fixed_depth, frame], cfg.pyramid_levels, dtype, device)
+        pyramid = build_levels([fixed_depth, frame], cfg.pyramid_levels, dtype, device)
         pairs = torch.tensor([[0, 1]], device=device)  # A = keyframe (decoded depth), B = frame
         iterations = 0
-        for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):  # coarse to fine (Sec. 4.2)
-            problem = PairProblem(levels[lvl], pairs, sfm_cfg, terms)
+        for lvl, iters in levels:  # coarse to fine (Sec. 4.2)
+            problem = PairProblem(pyramid[lvl], pairs, sfm_cfg, terms)
             state, report = levenberg_marquardt(problem, state, layout, sfm_cfg, iters)
             iterations += report.iterations
-        finest = levels[cfg.pyramid_levels[-1]]
+        finest = pyramid[cfg.pyramid_levels[-1]]
         cost, ev = PairProblem(finest, pairs, sfm_cfg, terms).evaluate(state)
         return state, cost, ev.valid[0, 0], ev.r[0, 0], ev.sigma[0, 0], finest.gray[0, 0].reshape(-1), iterations
 

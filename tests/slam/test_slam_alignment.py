@@ -288,3 +288,46 @@ def test_the_keyframe_reference_is_kept_until_its_code_changes():
     _same_result(res, float(frames[0].depth.median()), 1e-9, 1e-9, 1e-9)
     fresh = TrackingReference(kf, code, (0,), tracker.sfm_cfg, D, torch.device("cpu"))
     assert fresh.matches(kf, code) and not fresh.matches(kf, other) and not fresh.matches(kf, code[:3])
+
+
+def test_a_start_from_the_matches_skips_the_coarse_levels_and_ends_where_all_levels_do(monkeypatch):
+    """``tracker.feature_start_level``: with a start pose vouched for by enough matches the alignment begins at that
+    level; a frame started by the motion model alone still visits every level. Both end at the same pose."""
+    import codeslam.slam.tracker as tracker_module
+
+    frames, trackers, kf, code = _scene(torch.float32)
+    base = trackers["dedicated"]
+    levels = base.cfg.pyramid_levels
+    assert len(levels) >= 3
+    start = sorted(levels)[1]  # skip all but the two finest
+    skipping = PhotometricTracker(replace(base.cfg, feature_start_level=start), base.sfm_cfg)
+    visited = []
+    lm = tracker_module.levenberg_marquardt
+
+    def recording(problem, *args, **kwargs):
+        visited.append(problem.ref.gray.numel())  # the level's pixel count tells the level
+        return lm(problem, *args, **kwargs)
+
+    monkeypatch.setattr(tracker_module, "levenberg_marquardt", recording)
+    depth = float(frames[0].depth.median())
+    for j in (2, 4):
+        term = _keypoints(frames, j, torch.float32)
+        T_true = se3_inverse(frames[0].pose) @ frames[j].pose
+        T_start = se3_exp(torch.tensor([0.002, -0.001, 0.001, 0.002, 0.001, -0.002], dtype=D)) @ T_true  # a PnP pose
+        res = {}
+        for name, t in (("all", base), ("skip", skipping)):
+            visited.clear()
+            res[name] = t.track(kf, code, frames[j].gray, frames[j].camera, T_start, reprojection=term,
+                                min_feature_inliers=20)
+            res[name + " levels"] = list(visited)
+        assert len(res["all levels"]) == len(levels) and len(res["skip levels"]) == 2
+        assert res["skip levels"] == res["all levels"][-2:]  # the two finest, in order
+        assert res["all"].ok and res["skip"].ok
+        err = {k: _pose_difference(res[k].T_kf, T_true, depth) for k in ("all", "skip")}
+        # measured (rotation rad, translation / depth): all levels (1.7e-3, 8.1e-4) and (9.8e-4, 1.8e-3), the
+        # finest two (1.4e-3, 6.6e-4) and (9.4e-4, 1.7e-3)
+        assert all(s <= 1.2 * a for s, a in zip(err["skip"], err["all"])), err
+        visited.clear()  # too few matches to vouch for the start: every level
+        skipping.track(kf, code, frames[j].gray, frames[j].camera, T_start, reprojection=term,
+                       min_feature_inliers=len(term) + 1)
+        assert len(visited) == len(levels)
