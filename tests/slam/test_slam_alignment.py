@@ -296,11 +296,12 @@ def test_a_start_from_the_matches_skips_the_coarse_levels_and_ends_where_all_lev
     import codeslam.slam.tracker as tracker_module
 
     frames, trackers, kf, code = _scene(torch.float32)
-    base = trackers["dedicated"]
-    levels = base.cfg.pyramid_levels
+    cfg, sfm_cfg = trackers["dedicated"].cfg, trackers["dedicated"].sfm_cfg
+    levels = cfg.pyramid_levels
     assert len(levels) >= 3
     start = sorted(levels)[1]  # skip all but the two finest
-    skipping = PhotometricTracker(replace(base.cfg, feature_start_level=start), base.sfm_cfg)
+    base = PhotometricTracker(replace(cfg, feature_start_level=-1), sfm_cfg)
+    skipping = PhotometricTracker(replace(cfg, feature_start_level=start), sfm_cfg)
     visited = []
     lm = tracker_module.levenberg_marquardt
 
