@@ -213,7 +213,8 @@ class PhotometricTracker:
         cfg, sfm_cfg = self.cfg, self.sfm_cfg
         reference = self.reference(keyframe, code)
         real = None if valid is None else self._real_pixel_pyramid(valid, reference.dtype, reference.device)
-        frame = FramePyramid(image, camera, valid, cfg.pyramid_levels, reference.dtype, reference.device, real)
+        frame = FramePyramid(image, camera, valid, [lvl for lvl, _ in levels], reference.dtype, reference.device,
+                             real)  # only the levels visited
         current = TrackingState.from_sfm(state)
         keypoints, others = None, []
         for term in terms:  # the keypoints' residuals in the tracker's own layout, the motion prior as it is
