@@ -166,7 +166,9 @@ class PhotometricTracker:
         whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,).
         ``valid`` (H, W) bool marks the image's real pixels (None: all). ``reprojection``: matched keypoints
         (keyframe = frame 0, this frame = frame 1) whose residuals join the photometric ones; the result is then
-        also ok when at least ``min_feature_inliers`` of them lie within ``feature_threshold`` pixels.
+        also ok when at least ``min_feature_inliers`` of them lie within ``feature_threshold`` pixels; with at
+        least that many matches (the PnP inliers that gave ``T_kf_init``) the alignment skips the levels coarser than
+        ``cfg.feature_start_level``.
         ``T_kf_prior``: the motion model's prediction of the pose, a soft prior on it (``prior_dt`` seconds since
         the last frame; see ``TrackerConfig.motion_prior_acceleration``)."""
         cfg = self.cfg
