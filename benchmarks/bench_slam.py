@@ -55,11 +55,13 @@ def _sequence(spec: dict):
 def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
     import torch
 
+    from codeslam.cli.common import keep_freed_memory
     from codeslam.eval.slam_run import evaluate_run_if_possible
     from codeslam.slam.config import load_config
     from codeslam.slam.pipeline import ground_truth, run_slam
     from codeslam.slam.system import CodeSLAM
 
+    keep_freed_memory()  # as the codeslam command does at its start
     torch.set_num_threads(args["threads"])
     seq = _sequence(spec)
     n = min(len(seq), spec.get("limit") or len(seq))

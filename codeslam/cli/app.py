@@ -6,6 +6,8 @@ import sys
 
 import typer
 
+from codeslam.cli.common import keep_freed_memory
+
 app = typer.Typer(
     name="codeslam",
     help="CodeSLAM: compact learned depth codes, dense N-frame SfM and monocular SLAM.",
@@ -27,3 +29,4 @@ def _root() -> None:
 
     Add --debug to any command to see the full traceback of an error.
     """
+    keep_freed_memory()

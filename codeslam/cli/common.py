@@ -162,6 +162,29 @@ def check_device(device: str | None, default: str = "cpu") -> str:
     return device
 
 
+def keep_freed_memory() -> None:
+    """Ask glibc's allocator (Linux) to keep freed memory for reuse rather than hand it back to the system at once:
+    large blocks from the heap instead of fresh ``mmap`` pages (threshold 32 MB), no trimming of the heap's top
+    below 1 GB, and the heap grown 256 MB at a time. A process-wide setting, so the command line's and not the
+    library's; elsewhere (another C library) it does nothing.
+
+    Written for a measured reason: a keyframe's code Jacobian and the window solve allocate and free tens of MB
+    per step, and every fresh page faulted in again (``codeslam slam`` on TUM fr1/rpy, 2 threads, 4 runs each
+    alternating: system time 4.7 -> 1.1 s, wall time x0.92 (0.84-1.04), peak memory 678 -> 719 MB). PyTorch's
+    own advice for CPU speed is an allocator such as jemalloc, which pip cannot install."""
+    import ctypes
+
+    try:
+        mallopt = ctypes.CDLL(None).mallopt
+    except (OSError, AttributeError):  # not glibc
+        return
+    m_trim_threshold, m_top_pad, m_mmap_threshold = -1, -2, -3  # glibc's <malloc.h>
+    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
+    mallopt(m_mmap_threshold, 32 << 20)
+    mallopt(m_trim_threshold, 1 << 30)
+    mallopt(m_top_pad, 256 << 20)
+
+
 def set_threads(threads: int | None) -> None:
     """Apply ``--threads`` (None keeps torch's default)."""
     if threads is None:
