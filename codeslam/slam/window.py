@@ -54,7 +54,7 @@ from codeslam.sfm.variables import (
 from codeslam.slam.config import WindowConfig
 from codeslam.slam.frontend import KeyframeFeatures
 from codeslam.slam.poses import project_to_se3
-from codeslam.slam.reprojection import DecodedReprojectionTerm, keyframe_pair_term
+from codeslam.slam.reprojection import DecodedReprojectionTerm, StackedReprojectionTerm, keyframe_pair_term
 
 
 @dataclass
@@ -324,7 +324,7 @@ class SlidingWindow:
         layout = VariableLayout.for_sfm(F_, C, len(id_pairs), cfg.affine_brightness, self._fixed())
         levels = build_levels([k.keyframe for k in self.keyframes], cfg.pyramid_levels, dtype, device)
         n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
-        sparse_terms = self._pair_terms()  # matched keypoints: level-independent
+        sparse_terms = [StackedReprojectionTerm(self._pair_terms())]  # matched keypoints: level-independent
         for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
             # Coarser levels sum over fewer pixels: scale the prior alike so it keeps its weight against the data.
             scale = levels[lvl].uv.shape[0] / n_prior if self.cfg.scale_prior_with_level else 1.0
@@ -432,8 +432,8 @@ class SlidingWindow:
             H_d, g_d = assemble(terms, pairs, state.poses, level, layout)
             H += H_d.to(torch.float64)
             g += g_d.to(torch.float64)
-        for term in self._pair_terms({old_id}):  # matched keypoints of the pairs that involve it
-            term.add_to(H, g, layout, state)
+        # matched keypoints of the pairs that involve it
+        StackedReprojectionTerm(self._pair_terms({old_id})).add_to(H, g, layout, state)
         if self.cfg.depth_scale_sigma > 0:  # the leaving keyframe's scale prior
             lvl = self.prior_level
             level = build_levels([k.keyframe for k in kfs[:1]], [lvl], dtype, device)[lvl]

@@ -109,3 +109,94 @@ def test_decoded_points_jacobians_match_autograd_float64():
     J_auto = torch.autograd.functional.jacobian(fc, state.codes[0].clone())  # (N, 2, C)
     assert torch.allclose(J["code0"], J_auto, atol=1e-9, rtol=1e-7), (J["code0"] - J_auto).abs().max()
     assert float(J_auto.abs().max()) > 1e-3  # the code moves the points
+
+
+def _decoded_pairs(seed: int = 7, C: int = 5):
+    """Decoded pair terms among three frames with different match counts (one point behind the cameras), and a
+    state away from their optimum."""
+    from codeslam.geometry.proximity import depth_to_prox
+    from codeslam.slam.reprojection import DecodedReprojectionTerm
+
+    g = torch.Generator().manual_seed(seed)
+    cam = canonical_camera(256, 192)
+    poses = torch.stack([se3_exp(0.1 * torch.randn(6, generator=g, dtype=D)) for _ in range(3)])
+    terms = []
+    for (a, b), n in zip(((0, 1), (1, 0), (2, 1), (0, 2)), (9, 4, 13, 6)):
+        uv = torch.rand(n, 2, generator=g, dtype=D) * torch.tensor([255.0, 191.0], dtype=D)
+        z = 1.0 + 3.0 * torch.rand(n, generator=g, dtype=D)
+        ray = torch.stack([(uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy, torch.ones_like(z)], 1)
+        X = ray * z[:, None]
+        x = se3_act(se3_inverse(poses[b]) @ poses[a], X)
+        uv_b = project(x, cam.params(D)) + torch.randn(n, 2, generator=g, dtype=D)
+        jac = 0.02 * torch.randn(C, n, generator=g, dtype=D)
+        terms.append(DecodedReprojectionTerm(a, b, X, uv_b, 1.0 + torch.rand(n, generator=g, dtype=D), cam,
+                                             ray_a=ray, prox0=depth_to_prox(z, 1.2 + a), jac=jac,
+                                             avg_depth=1.2 + a))
+    terms[2].ray_a[0] *= -1.0  # a point behind A, hence behind B
+    codes = 0.3 * torch.randn(3, C, generator=g, dtype=D)
+    moved = poses.clone()
+    moved[1] = se3_exp(torch.tensor([0.03, -0.02, 0.01, 0.02, -0.01, 0.015], dtype=D)) @ poses[1]
+    return terms, SfMState(moved, codes, torch.zeros(0, 2, dtype=D))
+
+
+def test_stacked_pairs_are_the_sum_of_their_pair_terms():
+    """The window's one-pass keypoint term gives each pair's cost, gradient and J^T W J, with fixed blocks left
+    out, exactly as the pair terms summed."""
+    from codeslam.sfm.variables import CODE
+    from codeslam.slam.reprojection import StackedReprojectionTerm
+
+    terms, state = _decoded_pairs()
+    C = state.codes.shape[1]
+    stacked = StackedReprojectionTerm(terms + [terms[0].__class__(1, 2, terms[0].xyz_a[:0], terms[0].uv_b[:0],
+                                                                  terms[0].sigma[:0], terms[0].camera,
+                                                                  ray_a=terms[0].ray_a[:0],
+                                                                  prox0=terms[0].prox0[:0],
+                                                                  jac=terms[0].jac[:, :0], avg_depth=1.0)])
+    assert len(stacked) == sum(len(t) for t in terms) and stacked.num_pairs == 4  # the empty pair is dropped
+    assert torch.allclose(stacked.cost(state), sum(t.cost(state) for t in terms), rtol=1e-12)
+    full = [(BlockId(POSE, i), 6) for i in range(3)] + [(BlockId(CODE, i), C) for i in range(3)]
+    for layout in (VariableLayout(full), VariableLayout([b for b in full if b[0] not in
+                                                         (BlockId(POSE, 0), BlockId(CODE, 2))])):
+        H1, g1 = torch.zeros(layout.dim, layout.dim, dtype=D), torch.zeros(layout.dim, dtype=D)
+        H2, g2 = H1.clone(), g1.clone()
+        for t in terms:
+            t.add_to(H1, g1, layout, state)
+        stacked.add_to(H2, g2, layout, state)
+        assert float(H1.abs().max()) > 1.0
+        assert torch.allclose(H2, H1, rtol=1e-10, atol=1e-9), (H2 - H1).abs().max()
+        assert torch.allclose(g2, g1, rtol=1e-10, atol=1e-9), (g2 - g1).abs().max()
+    # The point behind the cameras costs the constant and gets no weight, in both.
+    _, _, w = stacked.jacobians(state)
+    assert int((w == 0).sum()) == 1 == sum(int((t.jacobians(state)[3] == 0).sum()) for t in terms)
+
+
+def test_stacked_pairs_jacobians_match_autograd_float64():
+    from codeslam.slam.reprojection import StackedReprojectionTerm
+
+    terms, state = _decoded_pairs(seed=8)
+    stacked = StackedReprojectionTerm(terms)
+    _, J, _ = stacked.jacobians(state)  # (N, 2, 12 + C) over [pose A, pose B, code A] of each match's pair
+    a, b = stacked.a[stacked.pid], stacked.b[stacked.pid]
+
+    def res(poses, codes):
+        return stacked._residuals(SfMState(poses, codes, state.affine))[0]
+
+    for k in range(3):
+        def f(xi, k=k):
+            poses = state.poses.clone()
+            poses[k] = se3_exp(xi) @ state.poses[k]
+            return res(poses, state.codes)
+
+        def fc(c, k=k):
+            codes = state.codes.clone()
+            codes[k] = c
+            return res(state.poses, codes)
+
+        J_pose = torch.autograd.functional.jacobian(f, torch.zeros(6, dtype=D))  # (N, 2, 6)
+        J_code = torch.autograd.functional.jacobian(fc, state.codes[k].clone())  # (N, 2, C)
+        expect = torch.where((a == k)[:, None, None], J[..., :6], 0) + torch.where((b == k)[:, None, None],
+                                                                                   J[..., 6:12], 0)
+        assert torch.allclose(expect, J_pose, atol=1e-9, rtol=1e-7), (k, (expect - J_pose).abs().max())
+        expect_c = torch.where((a == k)[:, None, None], J[..., 12:], 0)
+        assert torch.allclose(expect_c, J_code, atol=1e-9, rtol=1e-7), (k, (expect_c - J_code).abs().max())
+        assert float(J_code.abs().max()) > 1e-3 or not bool((a == k).any())
