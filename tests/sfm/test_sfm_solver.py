@@ -16,7 +16,7 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.pairs import master_pairs
 from codeslam.sfm.solver import PairProblem, levenberg_marquardt, sfm, solve_damped
-from codeslam.sfm.variables import CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
+from codeslam.sfm.variables import AFFINE, CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
 
 D = torch.float64
 GT_POSES = [look_pose(), look_pose((0.25, -0.05, 0.05), (0.02, -0.04, 0.01)),
@@ -240,3 +240,17 @@ def test_a_rejected_step_that_promised_little_ends_the_level_only_when_asked():
     assert rep.rejected >= 1 and rep.accepted >= 1 and rep.reason != "rejected a step the model promised little"
     with pytest.raises(Exception, match="rejection_stop_decrease"):
         SfMConfig(rejection_stop_decrease=1.0)
+
+
+def test_linear_prior_delta_is_each_blocks_local_difference():
+    """The prior's batched pose logarithms give what ``local_difference`` gives block by block, in block order."""
+    g = torch.Generator().manual_seed(3)
+    poses = torch.stack([se3_exp(0.5 * torch.randn(6, generator=g, dtype=D)) for _ in range(3)])
+    state = SfMState(poses, torch.randn(3, 4, generator=g, dtype=D), torch.randn(2, 2, generator=g, dtype=D))
+    blocks = [BlockId(CODE, 1), BlockId(POSE, 2), BlockId(AFFINE, 0), BlockId(POSE, 0)]
+    x0 = [torch.randn(4, generator=g, dtype=D), se3_exp(0.5 * torch.randn(6, generator=g, dtype=D)),
+          torch.randn(2, generator=g, dtype=D), se3_exp(0.5 * torch.randn(6, generator=g, dtype=D))]
+    prior = LinearPrior(blocks, torch.eye(16, dtype=D), torch.zeros(16, dtype=D), x0)
+    expect = torch.cat([state.local_difference(b, v) for b, v in zip(blocks, x0)])
+    assert torch.allclose(prior.delta(state), expect, rtol=1e-12, atol=1e-13)
+    assert float(expect[4:10].abs().max()) > 0.1  # the poses are far from their x0
