@@ -384,13 +384,28 @@ class CodeSLAM:
                     term = self.sparse.term(ref.sparse, views.features, sparse, self.dtype, self.device)
         frame = views.frame
         n = self._alignment_threads
+
+        def align(start: torch.Tensor, every_level: bool = False) -> TrackResult:
+            return self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, start,
+                                      self._affine_guess(ref), valid=frame.valid, reprojection=term,
+                                      min_feature_inliers=fcfg.min_inliers if term is not None else 0,
+                                      feature_threshold=fcfg.pnp_threshold,
+                                      T_kf_prior=T_kf_guess if len(self._records) >= 2 else None,
+                                      prior_dt=self._since_tracked(frame), every_level=every_level)
+
         with _torch_threads(None if n is None else min(n, torch.get_num_threads())):
-            track = self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, init,
-                                       self._affine_guess(ref), valid=frame.valid, reprojection=term,
-                                       min_feature_inliers=fcfg.min_inliers if term is not None else 0,
-                                       feature_threshold=fcfg.pnp_threshold,
-                                       T_kf_prior=T_kf_guess if len(self._records) >= 2 else None,
-                                       prior_dt=self._since_tracked(frame))
+            track = align(init)
+            if term is not None and track.feature_inliers < fcfg.retry_agreement * sparse.num_inliers:
+                # PnP's pose may have been a wrong start (FeatureConfig.retry_agreement): align from the motion
+                # model's prediction too, and keep the lower of the two minima of the same cost (a pose that
+                # passes the checks before one that does not).
+                again = align(T_kf_guess, every_level=True)
+
+                def rank(t: TrackResult) -> tuple[bool, float]:
+                    return not t.ok, t.cost if math.isfinite(t.cost) else math.inf
+
+                if rank(again) < rank(track):
+                    track = again
         source = "direct"
         if term is not None:
             source = "direct+features" if not track.photometric_reason else "features"

@@ -161,6 +161,7 @@ class PhotometricTracker:
         feature_threshold: float = 3.0,
         T_kf_prior: torch.Tensor | None = None,
         prior_dt: float | None = None,
+        every_level: bool = False,
     ) -> TrackResult:
         """Align ``image`` ((1, H, W) grey or (3, H, W) RGB, seen by ``camera``) to ``keyframe`` (with decoder)
         whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,).
@@ -170,7 +171,8 @@ class PhotometricTracker:
         least that many matches (the PnP inliers that gave ``T_kf_init``) the alignment skips the levels coarser than
         ``cfg.feature_start_level``.
         ``T_kf_prior``: the motion model's prediction of the pose, a soft prior on it (``prior_dt`` seconds since
-        the last frame; see ``TrackerConfig.motion_prior_acceleration``)."""
+        the last frame; see ``TrackerConfig.motion_prior_acceleration``). ``every_level``: visit all
+        ``cfg.pyramid_levels`` even with the matches (``T_kf_init`` did not come from them)."""
         cfg = self.cfg
         ref = keyframe.decoder.levels[0].jac
         dtype, device = ref.dtype, ref.device
@@ -190,7 +192,7 @@ class PhotometricTracker:
         if T_kf_prior is not None and prior_dt is not None and cfg.motion_prior_acceleration > 0:
             terms.append(self._motion_prior(T_kf_prior, prior_dt, dtype, device))  # the motion model, soft
         levels = list(zip(cfg.pyramid_levels, cfg.max_iterations))
-        started_by_features = (reprojection is not None and min_feature_inliers > 0
+        started_by_features = (reprojection is not None and min_feature_inliers > 0 and not every_level
                                and len(reprojection) >= min_feature_inliers)
         if started_by_features and cfg.feature_start_level >= 0:  # within the fine levels' basin already
             levels = [(lvl, it) for lvl, it in levels if lvl <= cfg.feature_start_level]

@@ -332,3 +332,7 @@ def test_a_start_from_the_matches_skips_the_coarse_levels_and_ends_where_all_lev
         skipping.track(kf, code, frames[j].gray, frames[j].camera, T_start, reprojection=term,
                        min_feature_inliers=len(term) + 1)
         assert len(visited) == len(levels)
+        visited.clear()  # a start that is not the matches' (the retry from the prediction): every level
+        skipping.track(kf, code, frames[j].gray, frames[j].camera, T_start, reprojection=term,
+                       min_feature_inliers=20, every_level=True)
+        assert len(visited) == len(levels)
