@@ -67,13 +67,6 @@ def _local_blocks(a: int, b: int, p: int, rolling_shutter: bool) -> list[tuple[B
     return blocks
 
 
-def _add(H: torch.Tensor, rows: slice, cols: slice, M: torch.Tensor, symmetric: bool) -> None:
-    """H[rows, cols] += M and, if ``symmetric`` (an off-diagonal block), H[cols, rows] += M^T."""
-    H[rows, cols] += M
-    if symmetric:
-        H[cols, rows] += M.transpose(0, 1)
-
-
 def assemble(
     terms: PairTerms,
     pairs: torch.Tensor,
@@ -114,62 +107,75 @@ def assemble(
     g_loc = (Q.transpose(1, 2) @ g_d.unsqueeze(-1)).squeeze(-1)  # (P, L + 6)
 
     # ---- codes of A: one product per frame over all pairs in which it is A ---------------------------------
+    K = Q.shape[-1]  # local columns [pose A, pose B, affine, (rs A, rs B)]
     code_A_free = [layout.slice(BlockId(CODE, f)) for f in range(F_)]
     frames = sorted({a for a, _ in pair_list if code_A_free[a] is not None})  # free codes that appear as A
+    # Every pair's blocks go into one local matrix over [local columns, code A, code B], added to H by one
+    # indexed accumulation below (adding block by block took ~40 small operations per pair, measured 8 ms of a
+    # 9 ms assembly at 32x24 pixels and 12 pairs).
+    Dl = K + 2 * C
+    Hl = H.new_zeros(P, Dl, Dl)
+    gl = g.new_zeros(P, Dl)
+    Hl[:, :K, :K] = H_loc
+    gl[:, :K] = g_loc
     if frames:
         ws_A = w * terms.s_A  # (P, T, N)
         onehot = torch.nn.functional.one_hot(iA, F_).to(dtype).transpose(0, 1)  # (F, P): sums pairs per frame A
         q = onehot @ (ws_A * terms.s_A).sum(1)  # (F, N), sum over pairs and types of w s_A^2
         gr = onehot @ (ws_A * r).sum(1)  # (F, N), sum of w s_A r
         M = (ws_A.unsqueeze(-1) * Jd).sum(1)  # (P, N, L), w s_A J_dense summed over types
+        H_Ad = H.new_zeros(P, C, L)
         for f in frames:
             sl = code_A_free[f]
             with _timed(profile, "gemm", dev):
                 H[sl, sl] += Gt[f].T @ (Gt[f] * q[f].unsqueeze(-1))  # J_A^T diag(q) J_A, (C, C)
             g[sl] += Gt[f].T @ gr[f]
-        with _timed(profile, "gemm", dev):
-            # J_A^T (w s_A J_dense), (C, L) per pair
-            H_Ad = [None if code_A_free[a] is None else (M[p].T @ Gt[a]).T for p, (a, _) in enumerate(pair_list)]
+            at = torch.nonzero(iA == f).squeeze(1)  # the pairs in which f is A
+            with _timed(profile, "gemm", dev):  # J_A^T (w s_A J_dense), (C, L) per pair
+                H_Ad[at] = (Gt[f].T @ M[at].transpose(0, 1).reshape(N, -1)).reshape(C, len(at), L).transpose(0, 1)
+        H_Aloc = H_Ad @ Q  # (P, C, K)
+        Hl[:, K:K + C, :K] = H_Aloc
+        Hl[:, :K, K:K + C] = H_Aloc.transpose(1, 2)
 
     # ---- codes of B through the geometric residual's J_B[v] -------------------------------------------------
-    do_B = terms.JB_w is not None and GEOMETRIC in terms.types
-    if do_B:
+    if terms.JB_w is not None and GEOMETRIC in terms.types:
         tg = terms.types.index(GEOMETRIC)
         wg, sA_g, sB_g, rg = w[:, tg], terms.s_A[:, tg], terms.s_B[:, tg], r[:, tg]  # (P, N)
-
-    # ---- scatter the per-pair blocks ------------------------------------------------------------------------
-    for p, (a, b) in enumerate(pair_list):
-        blocks = _local_blocks(a, b, p, rs)
-        loc = [(i0, i1) for _, i0, i1 in blocks]
-        sls = [layout.slice(i) for i, _, _ in blocks]
-        for (i0, i1), si in zip(loc, sls):
-            if si is None:
+        for p, (a, b) in enumerate(pair_list):
+            if layout.slice(BlockId(CODE, b)) is None:
                 continue
-            g[si] += g_loc[p, i0:i1]
-            for (j0, j1), sj in zip(loc, sls):
-                if sj is not None:
-                    H[si, sj] += H_loc[p, i0:i1, j0:j1]
-        sA = code_A_free[a]
-        sB = layout.slice(BlockId(CODE, b))
-        if sA is not None:
-            H_Aloc = H_Ad[p] @ Q[p]  # (C, L + 6)
-            for (j0, j1), sj in zip(loc, sls):
-                if sj is not None:
-                    _add(H, sA, sj, H_Aloc[:, j0:j1], True)
-        if do_B and sB is not None:
             JB, k = terms.JB_w[p], terms.JB_idx[p]  # (C, M), J_B[v]^T at the M pixels with geometric weight
             wk, sBk = wg[p, k], sB_g[p, k]
             with _timed(profile, "gemm", dev):
-                H[sB, sB] += (JB * (wk * sBk * sBk)) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
-                H_Bd = JB @ ((wk * sBk).unsqueeze(-1) * Jd[p, tg, k])  # (C, L)
-                if sA is not None:  # J_A^T diag(w s_A s_B) J_B[v]
+                Hl[p, K + C:, K + C:] = (JB * (wk * sBk * sBk)) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
+                H_Bloc = (JB @ ((wk * sBk).unsqueeze(-1) * Jd[p, tg, k])) @ Q[p]  # (C, K)
+                if code_A_free[a] is not None:  # J_A^T diag(w s_A s_B) J_B[v]
                     GA = Gt[a].index_select(0, k).mul_((wk * sA_g[p, k] * sBk).unsqueeze(-1))  # (M, C)
-                    _add(H, sA, sB, GA.T @ JB.T, True)
-            g[sB] += JB @ (wk * sBk * rg[p, k])
-            H_Bloc = H_Bd @ Q[p]  # (C, L + 6)
-            for (j0, j1), sj in zip(loc, sls):
-                if sj is not None:
-                    _add(H, sB, sj, H_Bloc[:, j0:j1], True)
+                    H_AB = GA.T @ JB.T
+                    Hl[p, K:K + C, K + C:] = H_AB
+                    Hl[p, K + C:, K:K + C] = H_AB.T
+            Hl[p, K + C:, :K] = H_Bloc
+            Hl[p, :K, K + C:] = H_Bloc.T
+            gl[p, K + C:] = JB @ (wk * sBk * rg[p, k])
+
+    # ---- scatter the local matrices: a fixed block's rows and columns go to one extra, discarded, index -------
+    trash = layout.dim
+    cols = []
+    for p, (a, b) in enumerate(pair_list):
+        c = [trash] * Dl
+        for block, i0, i1 in _local_blocks(a, b, p, rs) + [(BlockId(CODE, a), K, K + C),
+                                                           (BlockId(CODE, b), K + C, K + 2 * C)]:
+            sl = layout.slice(block)
+            if sl is not None:
+                c[i0:i1] = range(sl.start, sl.stop)
+        cols.append(c)
+    idx = torch.tensor(cols, device=dev)  # (P, Dl)
+    H_ext = H.new_zeros(trash + 1, trash + 1)
+    g_ext = g.new_zeros(trash + 1)
+    H_ext.index_put_((idx[:, :, None].expand(P, Dl, Dl), idx[:, None, :].expand(P, Dl, Dl)), Hl, accumulate=True)
+    g_ext.index_put_((idx,), gl, accumulate=True)
+    H += H_ext[:trash, :trash]
+    g += g_ext[:trash]
     return H, g
 
 
