@@ -55,9 +55,10 @@ def test_depth_scale_prior_jacobian_matches_autograd_float64():
     code = 0.3 * torch.randn(C, generator=torch.Generator().manual_seed(1), dtype=D)
     state = SfMState(torch.eye(4, dtype=D)[None], code[None], torch.zeros(0, 2, dtype=D))
     assert float(prior.cost(SfMState(state.poses, torch.zeros(1, C, dtype=D), state.affine))) < 1e-20
-    r, J = prior._residual(state, 0, prior._target[0])
+    r, J = prior._residuals(state)
+    r, J = r[0], J[0]
     J_auto = torch.autograd.functional.jacobian(
-        lambda c: prior._residual(SfMState(state.poses, c[None], state.affine), 0, prior._target[0])[0], code)
+        lambda c: prior._residuals(SfMState(state.poses, c[None], state.affine))[0][0], code)
     assert torch.allclose(J, J_auto, atol=1e-10, rtol=1e-8)
     layout = VariableLayout([(BlockId(CODE, 0), C)])
     H, g = torch.zeros(C, C, dtype=D), torch.zeros(C, dtype=D)
@@ -218,3 +219,40 @@ def test_the_interpolated_trajectory_spreads_each_keyframes_correction_over_the_
     e_int, e_ref = evaluate_run(interpolated, gt), evaluate_run(reference, gt)
     print({k: (round(e_ref[k], 5), round(e_int[k], 5)) for k in ("ate_sim3_rmse", "rpe_trans_sim3_rmse")})
     assert e_int["rpe_trans_sim3_rmse"] < e_ref["rpe_trans_sim3_rmse"]
+
+
+def test_depth_scale_prior_holds_each_frame_over_its_own_valid_pixels():
+    """All frames in one pass: each frame's residual is its own mean log depth over its valid pixels (holes
+    left out), and the frames' blocks land on their own codes."""
+    from codeslam.geometry.proximity import prox_to_depth
+    from codeslam.sfm.keyframes import Keyframe
+
+    frames = synth_frames(3, 3, 10.0)
+    kfs = [Keyframe(f.gray.to(D), f.camera, standin_depth_model(num_levels=3)(f).to(dtype=D)) for f in frames]
+    level = build_levels(kfs, [1], D, torch.device("cpu"))[1]
+    level.prox0[0, 0, :3] = float("nan")  # holes in frame 0 and frame 2
+    level.prox0[2, 0, :, :5] = 0.0
+    prior = DepthScalePrior(level, [2, 0], sigma=0.2)
+    C = level.code_size
+    codes = 0.3 * torch.randn(3, C, generator=torch.Generator().manual_seed(2), dtype=D)
+    state = SfMState(torch.eye(4, dtype=D).expand(3, 4, 4).clone(), codes, torch.zeros(0, 2, dtype=D))
+    r, J = prior._residuals(state)
+    for i, k in enumerate([2, 0]):
+        p0 = level.prox0[k, 0]
+        ok = torch.isfinite(p0) & (p0 > 0)
+        assert int(ok.sum()) < p0.numel()
+        jac = level.jac[k][:, ok]  # (C, M)
+
+        def m(c, p0=p0, ok=ok, jac=jac, k=k):
+            return torch.log(prox_to_depth(p0[ok] + c @ jac, level.avg_depth[k])).mean()
+
+        expect = (m(codes[k]) - m(torch.zeros(C, dtype=D))) / 0.2
+        assert torch.allclose(r[i], expect, rtol=1e-10)
+        J_auto = torch.autograd.functional.jacobian(m, codes[k]) / 0.2
+        assert torch.allclose(J[i], J_auto, atol=1e-10, rtol=1e-8)
+    layout = VariableLayout([(BlockId(CODE, k), C) for k in range(3)])
+    H, g = torch.zeros(3 * C, 3 * C, dtype=D), torch.zeros(3 * C, dtype=D)
+    prior.add_to(H, g, layout, state)
+    assert torch.allclose(H[2 * C:, 2 * C:], torch.outer(J[0], J[0])) and torch.allclose(g[:C], J[1] * r[1])
+    assert float(H[C:2 * C].abs().max()) == 0.0  # frame 1 is not held
+    assert torch.allclose(prior.cost(state), 0.5 * r.square().sum())
