@@ -32,6 +32,18 @@ from codeslam.sfm.variables import CODE, POSE, POSE_DIM, BlockId, SfMState, Vari
 from codeslam.sfm.warp import relative_pose, relative_pose_jacobians
 
 
+def _robust(r: torch.Tensor, x: torch.Tensor, sigma: torch.Tensor, huber: float,
+            weight: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Residuals r (N, 2) of points x (N, 3) in B -> per-point cost (N,) ``weight rho(|r| / sigma)`` and IRLS
+    weight (N,) ``weight rho'(s)/s / sigma^2``; points behind B cost ``rho(huber)`` and get no weight."""
+    sigma = sigma.to(dtype=r.dtype, device=r.device)
+    rho, w = huber_cost_and_weight(r.norm(dim=-1) / sigma, huber)
+    front = x[:, 2] > MIN_KEYPOINT_DEPTH
+    cost = torch.where(front, rho, torch.full_like(rho, 0.5 * huber * huber))
+    irls = torch.where(front, w / sigma**2, torch.zeros_like(w))
+    return weight * cost, weight * irls
+
+
 @dataclass
 class ReprojectionTerm:
     """Matched keypoints between frame ``a`` (3D points) and frame ``b`` (pixels) of a state.
@@ -80,16 +92,7 @@ class ReprojectionTerm:
         return ((r.norm(dim=-1) <= threshold_px) & (x[:, 2] > MIN_KEYPOINT_DEPTH)).cpu()
 
     def _robust(self, r: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """-> per-point cost (N,) ``weight rho(|r| / sigma)`` and IRLS weight (N,) ``weight rho'(s)/s / sigma^2``;
-        points behind B cost ``rho(huber)`` and get no weight."""
-        sigma = self.sigma.to(dtype=r.dtype, device=r.device)
-        s = r.norm(dim=-1) / sigma
-        front = x[:, 2] > MIN_KEYPOINT_DEPTH
-        rho, w = huber_cost_and_weight(s, self.huber)
-        k = self.huber
-        cost = torch.where(front, rho, torch.full_like(rho, 0.5 * k * k))
-        irls = torch.where(front, w / sigma**2, torch.zeros_like(w))
-        return self.weight * cost, self.weight * irls
+        return _robust(r, x, self.sigma, self.huber, self.weight)
 
     def cost(self, state: SfMState) -> torch.Tensor:
         if len(self) == 0:
@@ -247,14 +250,7 @@ class StackedReprojectionTerm:
         return r, x, R, prox
 
     def _robust(self, r: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """As :meth:`ReprojectionTerm._robust`, per match."""
-        sigma = self.sigma.to(dtype=r.dtype, device=r.device)
-        rho, w = huber_cost_and_weight(r.norm(dim=-1) / sigma, self.huber)
-        front = x[:, 2] > MIN_KEYPOINT_DEPTH
-        k = self.huber
-        cost = torch.where(front, rho, torch.full_like(rho, 0.5 * k * k))
-        irls = torch.where(front, w / sigma**2, torch.zeros_like(w))
-        return self.weight * cost, self.weight * irls
+        return _robust(r, x, self.sigma, self.huber, self.weight)
 
     def cost(self, state: SfMState) -> torch.Tensor:
         if len(self) == 0:
