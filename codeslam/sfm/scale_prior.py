@@ -43,7 +43,7 @@ class DepthScalePrior:
     sigma: float
 
     def __post_init__(self) -> None:
-        idx = torch.tensor(self.frames, dtype=torch.long, device=self.level.prox0.device)
+        self._idx = idx = torch.tensor(self.frames, dtype=torch.long, device=self.level.prox0.device)
         prox0 = self.level.prox0[idx, 0].flatten(1)  # (K, N)
         self._valid = torch.isfinite(prox0) & (prox0 > 0)  # (K, N)
         self._count = self._valid.sum(-1).clamp_min(1)  # (K,) M of each frame
@@ -62,8 +62,7 @@ class DepthScalePrior:
 
     def _residuals(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor]:
         """-> r (K,) and dr/dc (K, C) of the prior's frames, in their order."""
-        idx = torch.tensor(self.frames, dtype=torch.long, device=state.codes.device)
-        codes = state.codes[idx].to(self._jac.dtype)  # (K, C)
+        codes = state.codes[self._idx].to(self._jac.dtype)  # (K, C)
         prox = self._p0 + (codes[:, None, :] @ self._jac).squeeze(1)  # (K, N) p0 + J c
         m = self._mean_log_depth(prox)
         d = prox_to_depth(prox, self._a).clamp_min(1e-6)

@@ -27,6 +27,7 @@ from codeslam.geometry.camera import PinholeCamera, project, project_jac
 from codeslam.geometry.image import bilinear_sample
 from codeslam.geometry.lie import hat, se3_act
 from codeslam.geometry.proximity import d_depth_d_prox, prox_to_depth
+from codeslam.sfm.normal_equations import add_local_blocks
 from codeslam.sfm.residuals import huber_cost_and_weight
 from codeslam.sfm.variables import CODE, POSE, POSE_DIM, BlockId, SfMState, VariableLayout
 from codeslam.sfm.warp import relative_pose, relative_pose_jacobians
@@ -278,17 +279,6 @@ class StackedReprojectionTerm:
             return
         r, J, w = self.jacobians(state)
         P, D = self.num_pairs, J.shape[-1]
-        # Each pair's columns in the increment vector; a fixed block's go to one extra, discarded, index.
-        trash = layout.dim
-        cols = []
-        for a, b in zip(self.a.tolist(), self.b.tolist()):
-            c = []
-            for block in (BlockId(POSE, a), BlockId(POSE, b), BlockId(CODE, a)):
-                sl = layout.slice(block)
-                size = POSE_DIM if block.kind == POSE else D - 2 * POSE_DIM
-                c.extend(range(sl.start, sl.stop) if sl is not None else [trash] * size)
-            cols.append(c)
-        idx = torch.tensor(cols, device=H.device)  # (P, D)
         Jw = J * w[:, None, None]
         pad = J.new_zeros(P * self.n_max, 2, D)
         pad_w = J.new_zeros(P * self.n_max, 2, D)
@@ -297,10 +287,6 @@ class StackedReprojectionTerm:
         pad, pad_w, pad_r = (t.reshape(P, 2 * self.n_max, -1) for t in (pad, pad_w, pad_r))
         H_p = pad_w.transpose(1, 2) @ pad  # (P, D, D) each pair's J^T W J
         g_p = (pad_w.transpose(1, 2) @ pad_r).squeeze(-1)  # (P, D)
-        H_ext = H.new_zeros(trash + 1, trash + 1)
-        g_ext = g.new_zeros(trash + 1)
-        H_ext.index_put_((idx[:, :, None].expand(P, D, D), idx[:, None, :].expand(P, D, D)), H_p.to(H.dtype),
-                         accumulate=True)
-        g_ext.index_put_((idx,), g_p.to(g.dtype), accumulate=True)
-        H += H_ext[:trash, :trash]
-        g += g_ext[:trash]
+        blocks = [[(BlockId(POSE, a), 0, POSE_DIM), (BlockId(POSE, b), POSE_DIM, 2 * POSE_DIM),
+                   (BlockId(CODE, a), 2 * POSE_DIM, D)] for a, b in zip(self.a.tolist(), self.b.tolist())]
+        add_local_blocks(H, g, layout, blocks, H_p, g_p)
