@@ -32,10 +32,15 @@ class SfMConfig:
     """Space of the geometric residual f(z) - f(D_B[v]): 'log_depth' (scale-free: scaling every depth and
     translation together leaves it unchanged, as it leaves the photometric term) or 'proximity' (the decoder's
     output; beyond the average depth a it shrinks as depths grow, so it pulls the scale up)."""
-    sigma_geometric: float = 0.08
-    """Geometric noise in the units of ``geometric_space``: 0.08 in log depth (8% relative depth error) is what
-    0.02 in proximity is at the average depth (set 0.02 with ``geometric_space: proximity``); relative weighting
-    (ii)."""
+    sigma_geometric: float = 0.25
+    """Geometric noise in the units of ``geometric_space`` (relative weighting (ii)): 0.25 in log depth, the
+    SLAM window's value. The network's single-view depths of real frames disagree at the true poses by 0.10-0.13
+    (robust spread), so the former 0.08 (8% relative depth error; what 0.02 in proximity is at the average depth,
+    for ``geometric_space: proximity``) let the term pull the depths of frames with little parallax after poses
+    fitted to noise. Measured on TUM fr1/rpy (``docs/results/table1_sfm.md``, issue 11 item 5): with neighbours
+    -6..+9 frames the far masters 60, 100, 140 end +1.5%, -18%, +9% against their zero code at 0.08 and -10%,
+    -25%, -19% at 0.25; the close masters 6, 18, 30, 42 (+-2, +-4) -20..-41% and -24..-31%. It costs the
+    generator rooms part of their gain (scene 0, one paired frame: -53% -> -23%)."""
     geometric_stride: int = 1
     """Geometric residuals on every s-th pixel of every s-th row of the finest level only (level l: s >> l, at
     least 1), each weighted s^2 so the term keeps its weight. The decoded depths are smooth, so the term's

@@ -268,13 +268,13 @@ class KeyframeConfig:
 
 def _default_window_sfm() -> SfMConfig:
     # Window solves start from tracked poses and the previous codes, so fewer, finer levels than the
-    # from-scratch SfM default suffice. The geometric noise is wider than SfM's 0.08: a window's keyframes are
-    # ~10 deg or tens of cm apart and start at the network's single-view depths, which disagree at the true poses
-    # by 0.10-0.13 in log depth (robust spread; TUM fr1/rpy, HoloLens walk, generator walk). At 0.08 the term
-    # shortened the pan between TUM keyframes by 9%; at 0.25, over two or three start frames each (1 thread):
-    # HoloLens walk 0.18-0.26 -> 0.14-0.17 m, generator walk 0.12-0.13 -> 0.08-0.10 m, hand-held 0.032 -> 0.021 m,
-    # HoloLens with the dataset's depth 0.70 -> 0.49 m; TUM fr1/rpy 0.034-0.036 -> 0.040-0.044 m
-    # (docs/results/slam_table.md, third session of 2026-11-25).
+    # from-scratch SfM default suffice. The geometric noise (SfM's default too since 2026-11-27) is wider than the
+    # former 0.08: a window's keyframes are ~10 deg or tens of cm apart and start at the network's single-view
+    # depths, which disagree at the true poses by 0.10-0.13 in log depth (robust spread; TUM fr1/rpy, HoloLens
+    # walk, generator walk). At 0.08 the term shortened the pan between TUM keyframes by 9%; at 0.25, over two or
+    # three start frames each (1 thread): HoloLens walk 0.18-0.26 -> 0.14-0.17 m, generator walk 0.12-0.13 ->
+    # 0.08-0.10 m, hand-held 0.032 -> 0.021 m, HoloLens with the dataset's depth 0.70 -> 0.49 m; TUM fr1/rpy
+    # 0.034-0.036 -> 0.040-0.044 m (docs/results/slam_table.md, third session of 2026-11-25).
     # A rejected step that promised less than 3e-4 of the cost ends its level: after a rejection the next, more
     # damped step was rejected again 60 of 63 times (TUM fr1/rpy window solves) and 60 of 61 (HoloLens walk), and
     # the steps accepted after a rejection gained 5e-4 of the cost or less. Measured when it became the default

@@ -68,15 +68,17 @@ def test_close_range_tum_masters_end_well_below_the_zero_code(model, tum_rpy):
     assert mean <= 0.85, ratios  # the issue's check: at least 15% below the zero code
 
 
-def test_feature_start_holds_neighbours_outside_the_identity_basin(model, tum_rpy):
-    """The SfM issue's neighbour set for master 60 (-6, -3, +3, +6, +9 frames: up to 14 degrees away): from the
-    identity the coarse-to-fine solve ends 15 degrees off (frame 69 turned 72 degrees); from ORB + PnP on the
-    master's zero-code depth (``poses_from_features``, what ``codeslam sfm`` starts from) it ends within 1 degree
-    (measured 0.71) and the depth stays near the zero code's (+1%)."""
+@pytest.mark.parametrize("master", [60, 140])
+def test_feature_start_holds_neighbours_outside_the_identity_basin(model, tum_rpy, master):
+    """The real-motion issue's neighbour sets for masters 60 and 140 (-6, -3, +3, +6, +9 frames: up to 14 degrees
+    away, little parallax). From the identity the coarse-to-fine solve ends 15 degrees off for master 60 (frame 69
+    turned 72 degrees); from ORB + PnP on the master's zero-code depth (``poses_from_features``, what ``codeslam
+    sfm`` starts from) it ends within 1.5 degrees. The issue's check: the master's depth ends no worse than its zero
+    code. Measured: 60 -9.8%, 140 -18.6% at the default geometric noise 0.25; +1.5% and +9.3% at the former 0.08."""
     from codeslam.slam.frontend import poses_from_features
 
     seq = open_dataset(tum_rpy)
-    idx = [60, 54, 57, 63, 66, 69]
+    idx = [master + o for o in (0, -6, -3, 3, 6, 9)]
     frames = [model.canonical(seq[i]) for i in idx]
     kfs = [model.keyframe(f) for f in frames]
     dec = kfs[0].decoder
@@ -92,4 +94,4 @@ def test_feature_start_holds_neighbours_outside_the_identity_basin(model, tum_rp
     gt = frames[0].depth
     before = prox_rmse(dec.prox(zero), model.target_prox(gt), gt)
     after = prox_rmse(dec.prox(res.codes[0]), model.target_prox(gt), gt)
-    assert after < 1.1 * before, (before, after)
+    assert after <= before, (before, after)
