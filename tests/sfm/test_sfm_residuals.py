@@ -238,6 +238,26 @@ def test_slant_weight_is_one_fronto_parallel_and_follows_the_normal_angle():
     assert w[:, 20:-1].max() < 0.5  # grazing part strongly down-weighted
 
 
+def test_slant_weight_is_kornias_unit_normal_against_the_unit_ray():
+    """The weight forms the cosine without unit vectors; kornia's unit normals give the same to rounding."""
+    import kornia
+
+    g = torch.Generator().manual_seed(4)
+    depth = 2.0 + torch.nn.functional.interpolate(torch.rand(2, 1, 5, 6, generator=g, dtype=D), size=(24, 32),
+                                                  mode="bicubic", align_corners=True)
+    depth[1, 0, 5:9, 10:14] = 0.0  # no surface: no normal inside (0 / 0), weight 0 as kornia's zero vector gives
+    params = torch.tensor([[30.0, 31.0, 15.5, 11.5], [29.0, 30.0, 16.0, 11.0]], dtype=D)
+    K = torch.zeros(2, 3, 3, dtype=D)
+    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = params[:, 0], params[:, 1], params[:, 2], \
+        params[:, 3], 1.0
+    n = kornia.geometry.depth.depth_to_normals(depth, K)  # (2, 3, H, W), unit (0 where undefined)
+    ray = kornia.geometry.depth.depth_to_3d_v2(torch.ones(2, 24, 32, dtype=D), K).permute(0, 3, 1, 2)
+    cos = (n * ray).sum(1, keepdim=True).abs() / ray.pow(2).sum(1, keepdim=True).sqrt()
+    assert (n[1, :, 6:8, 11:13] == 0).all()
+    for cos_min in (0.25, 0.9):
+        torch.testing.assert_close(slant_weight(depth, params, cos_min), (cos / cos_min).clamp(max=1.0))
+
+
 def test_occluded_pixels_are_down_weighted_photometric_only_as_the_paper_or_in_both_terms(problem):
     level, state = problem
     cfg = SfMConfig(occlusion_weight=0.1, occlusion_geometric=False)  # the paper's (v)
