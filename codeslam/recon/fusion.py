@@ -6,11 +6,11 @@ highly slanted mesh elements are cropped", then every keyframe's depth is back-p
   ``[d * valid, valid]`` guided by log-depth and divides, so holes (depth 0) never bleed into valid depths and
   the range kernel is relative (a ``sigma_log_depth`` of 0.05 treats depths 5% apart as one surface, at any
   scale, which matters for monocular reconstructions of arbitrary scale).
-* A surface element is "highly slanted" when the angle between its normal (kornia's ``depth_to_normals``: the
-  cross product of the Sobel derivatives of the back-projected points) and the pixel's viewing ray exceeds
-  ``max_slant_deg``. Across a depth discontinuity the Sobel derivative spans both surfaces, so the normal
-  there is nearly perpendicular to the ray: the same test drops the "rubber sheet" between foreground and
-  background. Pixels next to invalid depth (whose normal mixes in a hole) are dropped too.
+* A surface element is "highly slanted" when the angle between its normal (the cross product of the Sobel
+  derivatives of the back-projected points, :func:`codeslam.geometry.image.slant_cosine`) and the pixel's
+  viewing ray exceeds ``max_slant_deg``. Across a depth discontinuity the Sobel derivative spans both
+  surfaces, so the normal there is nearly perpendicular to the ray: the same test drops the "rubber sheet"
+  between foreground and background. Pixels next to invalid depth (whose normal mixes in a hole) are dropped too.
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ import torch.nn.functional as F
 
 from codeslam.constants import MIN_DEPTH
 from codeslam.errors import ConfigError
-from codeslam.geometry.camera import PinholeCamera, pixel_grid, unproject, unproject_jac_depth
+from codeslam.geometry.camera import PinholeCamera, pixel_grid, unproject
+from codeslam.geometry.image import slant_cosine
 from codeslam.geometry.lie import se3_act
 
 
@@ -116,17 +117,6 @@ def bilateral_depth(depth: torch.Tensor, kernel_size: int, sigma_space: float, s
     return torch.where(valid & (den > 0), num / den.clamp_min(torch.finfo(den.dtype).tiny), torch.zeros_like(d))
 
 
-def slant_cosine(depth: torch.Tensor, camera: PinholeCamera) -> torch.Tensor:
-    """(B, 1, H, W) z-depth of ``camera`` -> (B, 1, H, W) ``|cos|`` of the angle between each pixel's surface
-    normal (kornia ``depth_to_normals``) and its viewing ray: 1 facing the camera, 0 seen edge-on."""
-    B, _, H, W = depth.shape
-    K = camera.K(depth.dtype, depth.device).expand(B, 3, 3)
-    normals = kornia.geometry.depth.depth_to_normals(depth, K)  # (B, 3, H, W), unit
-    ray = unproject_jac_depth(pixel_grid(H, W, depth.dtype, depth.device), camera.params(depth.dtype, depth.device))
-    ray = F.normalize(ray, dim=-1).permute(2, 0, 1)[None]  # (1, 3, H, W)
-    return (normals * ray).sum(1, keepdim=True).abs()
-
-
 def keep_mask(depth: torch.Tensor, camera: PinholeCamera, cfg: FusionConfig) -> torch.Tensor:
     """(B, 1, H, W) depth -> (B, 1, H, W) bool: valid, within [min_depth, max_depth], all 3x3 neighbours valid
     (the normal's Sobel footprint) and not slanted beyond ``cfg.max_slant_deg``."""
@@ -135,7 +125,7 @@ def keep_mask(depth: torch.Tensor, camera: PinholeCamera, cfg: FusionConfig) -> 
     # erosion of the valid mask by the 3x3 Sobel footprint (a min-pool); replicate keeps the border
     interior = -F.max_pool2d(-F.pad(in_range.to(depth.dtype), (1, 1, 1, 1), mode="replicate"), 3, stride=1)
     safe = torch.where(valid, depth, torch.ones_like(depth))  # finite everywhere for the normals
-    cos = slant_cosine(safe, camera)
+    cos = slant_cosine(safe, camera.params(depth.dtype, depth.device))
     cos_min = math.cos(math.radians(cfg.max_slant_deg))
     return in_range & (interior > 0.5) & (cos >= cos_min)
 

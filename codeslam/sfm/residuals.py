@@ -34,12 +34,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import kornia
 import torch
 
 from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH
 from codeslam.geometry.camera import project_jac
-from codeslam.geometry.image import bilinear_sample, image_gradients, inside_image
+from codeslam.geometry.image import bilinear_sample, image_gradients, inside_image, slant_cosine
 from codeslam.geometry.proximity import d_depth_d_prox, d_prox_d_depth, depth_to_prox, prox_to_depth
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import LevelData
@@ -178,29 +177,9 @@ def huber_cost_and_weight(s: torch.Tensor, k: torch.Tensor | float) -> tuple[tor
 
 def slant_weight(depth: torch.Tensor, params: torch.Tensor, cos_min: float) -> torch.Tensor:
     """Loss (iv): depth (F, 1, H, W), params (F, 4) -> (F, 1, H, W) weight ``min(1, cos / cos_min)`` where cos is
-    the angle between the surface normal (from the decoded depth) and the viewing ray."""
-    F_, _, H, W = depth.shape
-    K = torch.zeros(F_, 3, 3, dtype=depth.dtype, device=depth.device)
-    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = (
-        params[:, 0], params[:, 1], params[:, 2], params[:, 3], 1.0
-    )
-    # kornia's depth_to_normals up to its last step: the normal is the cross product of the unprojected points'
-    # Sobel derivatives along u and v. Its unit length is not formed: |n . ray| / sqrt(|n|^2 |ray|^2) is the same
-    # cosine. Written out for a measured reason: torch's vector norm over the 3 components (kornia's normalize, and
-    # the ray's) took 4.3 ms for 4 keyframes at 128x96 against 0.06 ms for the sum of squares, 2 threads; the
-    # weight went 10.1 -> 4.4 ms, about 100 ms of each TUM window solve (11 calls per solve) -> 45.
-    xyz = kornia.geometry.depth.depth_to_3d_v2(depth[:, 0], K).permute(0, 3, 1, 2)  # (F, 3, H, W)
-    grad = kornia.filters.spatial_gradient(xyz)  # (F, 3, 2, H, W): d/du, d/dv
-    normals = torch.linalg.cross(grad[:, :, 0], grad[:, :, 1], dim=1)  # (F, 3, H, W), not unit
-    u = torch.arange(W, dtype=depth.dtype, device=depth.device)
-    v = torch.arange(H, dtype=depth.dtype, device=depth.device)
-    rx = (u[None, None, :] - params[:, 2, None, None]) / params[:, 0, None, None]  # (F, 1, W)
-    ry = (v[None, :, None] - params[:, 3, None, None]) / params[:, 1, None, None]  # (F, H, 1)
-    ray = torch.stack(torch.broadcast_tensors(rx, ry, torch.ones_like(rx * ry)), dim=1)  # (F, 3, H, W)
-    lengths = ((normals * normals).sum(1, keepdim=True) * (ray * ray).sum(1, keepdim=True)).sqrt()
-    cos = (normals * ray).sum(1, keepdim=True).abs() / lengths
-    cos = torch.nan_to_num(cos, nan=0.0)  # no surface, no normal (zero depth around the pixel): 0 / 0
-    return (cos / cos_min).clamp(max=1.0)
+    the angle between the surface normal (from the decoded depth) and the viewing ray
+    (:func:`~codeslam.geometry.image.slant_cosine`)."""
+    return (slant_cosine(depth, params) / cos_min).clamp(max=1.0)
 
 
 def evaluate_pairs(

@@ -10,6 +10,7 @@ import torch
 
 from codeslam.errors import ConfigError
 from codeslam.geometry.camera import canonical_camera, pixel_grid, unproject_jac_depth
+from codeslam.geometry.image import slant_cosine
 from codeslam.geometry.lie import se3_exp
 from codeslam.recon.fusion import (
     FusionConfig,
@@ -17,7 +18,6 @@ from codeslam.recon.fusion import (
     bilateral_depth,
     fuse,
     keep_mask,
-    slant_cosine,
     view_points,
 )
 
@@ -54,7 +54,7 @@ def test_slant_cosine_of_a_plane_is_the_analytic_one(normal):
     """Sobel differences of points on a plane lie in the plane, so the normal is exact everywhere."""
     depth = plane_depth(normal, 2.0)
     assert bool((depth > 0).all())
-    cos = slant_cosine(depth[None, None], CAM)[0, 0]
+    cos = slant_cosine(depth[None, None], CAM.params(depth.dtype))[0, 0]
     torch.testing.assert_close(cos, plane_cosine(normal), atol=1e-9, rtol=0)
 
 
