@@ -60,10 +60,14 @@ class DepthScalePrior:
         logd = torch.log(prox_to_depth(prox, self._a).clamp_min(1e-6))
         return torch.where(self._valid, logd, 0.0).sum(-1) / self._count
 
+    def _prox(self, state: SfMState) -> torch.Tensor:
+        """(K, N) proximity ``p0 + J c`` of the prior's frames at the state's codes."""
+        codes = state.codes[self._idx].to(self._jac.dtype)  # (K, C)
+        return self._p0 + (codes[:, None, :] @ self._jac).squeeze(1)
+
     def _residuals(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor]:
         """-> r (K,) and dr/dc (K, C) of the prior's frames, in their order."""
-        codes = state.codes[self._idx].to(self._jac.dtype)  # (K, C)
-        prox = self._p0 + (codes[:, None, :] @ self._jac).squeeze(1)  # (K, N) p0 + J c
+        prox = self._prox(state)
         m = self._mean_log_depth(prox)
         d = prox_to_depth(prox, self._a).clamp_min(1e-6)
         dlog = torch.where(self._valid, d_depth_d_prox(prox, self._a) / d, 0.0)  # (K, N) d log D / dp
@@ -71,7 +75,7 @@ class DepthScalePrior:
         return (m - self._target) / self.sigma, grad / self.sigma
 
     def cost(self, state: SfMState) -> torch.Tensor:
-        r, _ = self._residuals(state)
+        r = (self._mean_log_depth(self._prox(state)) - self._target) / self.sigma  # without the Jacobian
         return 0.5 * r.to(state.codes.dtype).square().sum()
 
     def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
