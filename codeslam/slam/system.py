@@ -55,6 +55,7 @@ from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult
 from codeslam.slam.poses import project_to_se3, spread_correction
 from codeslam.slam.readout import CANDIDATES, ReadoutChoice
+from codeslam.slam.smoothing import smooth_positions
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
 from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport
 
@@ -788,13 +789,29 @@ class CodeSLAM:
     def trajectory(self) -> Trajectory:
         """Every processed frame's final pose: ``T_wk T_kf`` (its keyframe's latest pose), and with the config's
         ``trajectory: interpolated`` the frames between two keyframes moved toward the next one's
-        (:meth:`_interpolated`)."""
+        (:meth:`_interpolated`); then, with ``trajectory_smoothing``, the positions smoothed (:meth:`_smoothed`)."""
         if not self._records:
             raise CodeSLAMError("no frame has been processed")
         poses = torch.stack([self._pose(r) for r in self._records])
         if self.config.trajectory == "interpolated":
             poses = self._interpolated(poses)
+        if self.config.trajectory_smoothing > 0:
+            poses = self._smoothed(poses)
         return Trajectory(np.array([r.timestamp for r in self._records]), poses)
+
+    def _smoothed(self, poses: torch.Tensor) -> torch.Tensor:
+        """``poses`` with the positions of each map segment smoothed (:func:`~codeslam.slam.smoothing.
+        smooth_positions`): the tracked and relocalised frames are its measurements, the predicted ones are
+        placed by the spline alone."""
+        poses = poses.clone()
+        segment = np.array([self.keyframes[r.keyframe_id].segment for r in self._records])
+        t = np.array([r.timestamp for r in self._records], dtype=np.float64)
+        ok = np.array([r.ok for r in self._records])
+        for s in np.unique(segment):
+            at = np.nonzero(segment == s)[0]
+            x = smooth_positions(t[at], poses[at, :3, 3].numpy(), ok[at], self.config.trajectory_smoothing)
+            poses[at, :3, 3] = torch.from_numpy(x).to(poses.dtype)
+        return poses
 
     def _interpolated(self, poses: torch.Tensor) -> torch.Tensor:
         """``poses`` (one per record, ``T_wk T_kf``) with each run of frames tracked against keyframe k, between

@@ -175,8 +175,10 @@ def test_the_frames_before_the_second_keyframe_follow_the_first_solves_scale():
     from codeslam.slam.config import SLAMConfig
 
     seq = MemorySequence(preset_frames(5, 20, "handheld", 10.0))
-    # the poses as tracked and rescaled: 'interpolated' would move them toward the second keyframe's
-    system = CodeSLAM(SLAMConfig(trajectory="reference"), standin_depth_model(code_offset_scale=0.3))
+    # the poses as tracked and rescaled: 'interpolated' would move them toward the second keyframe's, and the
+    # smoothing spline every frame
+    system = CodeSLAM(SLAMConfig(trajectory="reference", trajectory_smoothing=0.0),
+                      standin_depth_model(code_offset_scale=0.3))
     run = run_slam(seq, system, seq.frames[0].camera)
     final = torch.as_tensor(system.trajectory().poses, dtype=D)
     second = next(r for r in run.results if r.is_keyframe and r.keyframe_id == 1)
@@ -205,7 +207,8 @@ def test_the_interpolated_trajectory_spreads_each_keyframes_correction_over_the_
     from codeslam.slam.pipeline import ground_truth
 
     seq = MemorySequence(preset_frames(5, 20, "handheld", 10.0))
-    system = CodeSLAM(SLAMConfig(), standin_depth_model(code_offset_scale=0.3))
+    # without the smoothing spline, which would move every frame (tests/slam/test_slam_smoothing.py)
+    system = CodeSLAM(SLAMConfig(trajectory_smoothing=0.0), standin_depth_model(code_offset_scale=0.3))
     run = run_slam(seq, system, seq.frames[0].camera)
     interpolated = system.trajectory()
     system.config = dataclasses.replace(system.config, trajectory="reference")
