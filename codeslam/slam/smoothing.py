@@ -15,7 +15,8 @@ Reinsch's smoothing spline, the posterior mean of a white-noise-on-acceleration 
 version of the tracker's constant-velocity model) given positions whose noise is ``tau^2`` times the prior's
 acceleration noise. ``tau`` (seconds) is the time scale below which motion is taken for tracking noise: a path
 that is linear in time is left as it is, whatever its speed. Both sums grow with the frame rate alike, so the
-balance does not depend on it. The rotations are left as tracked.
+balance does not depend on it. The rotations are left as tracked, and a map segment's first frame (the world's
+origin for the first segment) stays where it is.
 """
 
 from __future__ import annotations
@@ -65,15 +66,19 @@ def solve_pentadiagonal(d0: np.ndarray, d1: np.ndarray, d2: np.ndarray, b: np.nd
     return y
 
 
-def smooth_positions(t: np.ndarray, z: np.ndarray, measured: np.ndarray, tau: float) -> np.ndarray:
+def smooth_positions(t: np.ndarray, z: np.ndarray, measured: np.ndarray, tau: float,
+                     anchor: bool = False) -> np.ndarray:
     """The smoothing spline of the module docstring: t (n,) times (s), z (n, 3) positions, measured (n,) bool
-    -> (n, 3). Returned unchanged when ``tau`` is 0, when fewer than three frames or two measured ones are given,
-    or when the times do not increase strictly (no time scale to smooth on)."""
+    -> (n, 3). ``anchor``: the first position is held where it is (a map's origin, which defines the world rather
+    than measures it). Returned unchanged when ``tau`` is 0, when fewer than three frames are given, when too few
+    are measured to fix a line (two, or one besides the anchor), or when the times do not increase strictly (no
+    time scale to smooth on)."""
     z = np.asarray(z, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64)
     m = np.asarray(measured, dtype=np.float64)
     n = z.shape[0]
-    if tau <= 0 or n < 3 or int((m > 0).sum()) < 2 or not bool(np.all(np.diff(t) > 0)):
+    enough = int((m[1:] > 0).sum()) >= 1 if anchor else int((m > 0).sum()) >= 2
+    if tau <= 0 or n < 3 or not enough or not bool(np.all(np.diff(t) > 0)):
         return z.copy()
     lo, mid, hi = _second_difference_bands(t)
     lam = tau**4
@@ -85,4 +90,9 @@ def smooth_positions(t: np.ndarray, z: np.ndarray, measured: np.ndarray, tau: fl
     d1[:-1] += lam * lo * mid  # (k - 1, k) of row k
     d1[1:] += lam * mid * hi  # (k, k + 1)
     d2 = lam * lo * hi  # (k - 1, k + 1)
-    return solve_pentadiagonal(d0, d1, d2, m[:, None] * z)
+    b = m[:, None] * z
+    if not anchor:
+        return solve_pentadiagonal(d0, d1, d2, b)
+    b[1] -= d1[0] * z[0]  # x_0 = z_0 known: its columns move to the right-hand side
+    b[2] -= d2[0] * z[0]
+    return np.concatenate([z[:1], solve_pentadiagonal(d0[1:], d1[1:], d2[1:], b[1:])])

@@ -802,14 +802,15 @@ class CodeSLAM:
     def _smoothed(self, poses: torch.Tensor) -> torch.Tensor:
         """``poses`` with the positions of each map segment smoothed (:func:`~codeslam.slam.smoothing.
         smooth_positions`): the tracked and relocalised frames are its measurements, the predicted ones are
-        placed by the spline alone."""
+        placed by the spline alone, and the segment's first frame stays where it is."""
         poses = poses.clone()
         segment = np.array([self.keyframes[r.keyframe_id].segment for r in self._records])
         t = np.array([r.timestamp for r in self._records], dtype=np.float64)
         ok = np.array([r.ok for r in self._records])
         for s in np.unique(segment):
             at = np.nonzero(segment == s)[0]
-            x = smooth_positions(t[at], poses[at, :3, 3].numpy(), ok[at], self.config.trajectory_smoothing)
+            x = smooth_positions(t[at], poses[at, :3, 3].numpy(), ok[at], self.config.trajectory_smoothing,
+                                 anchor=True)  # the segment's first keyframe is its gauge
             poses[at, :3, 3] = torch.from_numpy(x).to(poses.dtype)
         return poses
 

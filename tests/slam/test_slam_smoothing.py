@@ -59,6 +59,19 @@ def test_the_banded_solver_against_a_dense_solve():
         solve_pentadiagonal(-np.ones(n), np.zeros(n - 1), np.zeros(n - 2), b)
 
 
+def test_an_anchored_spline_holds_the_first_position_and_minimises_the_rest():
+    n = 30
+    t = _irregular_times(n, 7)
+    z = np.random.default_rng(8).normal(size=(n, 3))
+    m = np.ones(n, bool)
+    x = smooth_positions(t, z, m, 0.05, anchor=True)
+    np.testing.assert_array_equal(x[0], z[0])
+    # the same as the free spline with the first frame's measurement weighted without bound
+    heavy = _dense_spline(t, z, np.r_[1e12, np.ones(n - 1)], 0.05)
+    np.testing.assert_allclose(x, heavy, rtol=0, atol=1e-6)
+    assert np.abs(x[1:] - smooth_positions(t, z, m, 0.05)[1:]).max() > 1e-4  # the anchor matters
+
+
 def test_a_path_linear_in_time_is_kept_whatever_its_speed():
     n = 30
     t = _irregular_times(n, 4)
@@ -66,6 +79,7 @@ def test_a_path_linear_in_time_is_kept_whatever_its_speed():
     m = np.ones(n, bool)
     m[10:14] = False
     np.testing.assert_allclose(smooth_positions(t, z, m, 0.2), z, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(smooth_positions(t, z, m, 0.2, anchor=True), z, rtol=0, atol=1e-9)
 
 
 def test_zig_zag_faster_than_the_time_scale_is_taken_out_and_slower_motion_kept():
@@ -90,6 +104,8 @@ def test_nothing_to_smooth_returns_the_input():
     one = np.zeros(10, bool)
     one[3] = True
     np.testing.assert_array_equal(smooth_positions(t, z, one, 0.05), z)  # a single measured frame
+    assert not np.array_equal(smooth_positions(t, z, one, 0.05, anchor=True), z)  # the anchor fixes the line
+    np.testing.assert_array_equal(smooth_positions(t, z, np.zeros(10, bool), 0.05, anchor=True), z)
     flat = np.full(10, 5.0)
     np.testing.assert_array_equal(smooth_positions(flat, z, ok, 0.05), z)  # no time scale
 
@@ -112,6 +128,7 @@ def test_the_system_smooths_the_written_positions_only():
     system.config = dataclasses.replace(system.config, trajectory_smoothing=0.0)
     plain = system.trajectory()
     torch.testing.assert_close(smoothed.poses[:, :3, :3], plain.poses[:, :3, :3], rtol=0, atol=0)
+    assert torch.equal(smoothed.poses[0], torch.eye(4, dtype=torch.float64))  # the map's origin stays
     shift = (smoothed.poses[:, :3, 3] - plain.poses[:, :3, 3]).norm(dim=1)
     assert float(shift.max()) > 0
     torch.testing.assert_close(system.keyframe_trajectory().poses, keyframes.poses, rtol=0, atol=0)
