@@ -5,7 +5,9 @@ evaluation against ground truth is :mod:`codeslam.eval.slam_run` (SLAM never imp
 
 Outputs of :func:`write_outputs` (all written atomically):
 
-* ``trajectory.txt``: every processed frame's final pose, TUM format (camera-to-world);
+* ``trajectory.txt``: every processed frame's final pose, TUM format (camera-to-world), its positions smoothed over
+  the whole run (``trajectory_smoothing``, :mod:`codeslam.slam.smoothing`; 0 writes them as placed by the keyframes
+  and tracking);
 * ``keyframes.txt``: the keyframes' final poses, TUM format; ``keyframes.npz``: their ids, frame indices,
   timestamps, poses, codes, final depth maps, images and camera (for reconstruction);
 * ``map.ply``: the keyframes' depths fused into one coloured point cloud (bilateral-filtered, slanted elements
