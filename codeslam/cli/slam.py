@@ -252,6 +252,10 @@ def _print_summary(s: dict, out: Path) -> None:
     rs = s.get("rolling_shutter")
     if isinstance(rs, dict):  # tracker.rolling_shutter_estimate
         rows.append(("rolling shutter", _readout_text(rs)))
+    if s.get("trajectory_smoothing_s"):
+        from codeslam.report.run import trajectory_text
+
+        rows.append(("trajectory", trajectory_text(s["trajectory_smoothing_s"])))
     if "ate_se3_rmse" in s:
         rows += [
             ("ATE SE(3)", f"{s['ate_se3_rmse']:.4f} m"),

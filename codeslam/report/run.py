@@ -164,3 +164,9 @@ def frame_statuses(run: RunFiles) -> tuple[np.ndarray, list[str], list[str]]:
     if n and status[0] == "tracked":
         status[0] = "initialising"
     return idx, status, ["" for _ in idx]
+
+
+def trajectory_text(smoothing_s: float) -> str:
+    """The summary's line on how ``trajectory.txt`` was written (``result.json``'s ``trajectory_smoothing_s``)."""
+    return (f"positions smoothed over the whole run (a spline, time scale {smoothing_s:g} s); rotations, keyframes "
+            f"and the live poses as estimated")

@@ -54,6 +54,7 @@ class SLAMRun:
         timings_ms: total wall time per stage (:data:`STAGES`) over the run.
         process_s: wall time inside the system; wall_s: of the whole loop (reading and resampling included).
         readout: the online choice of the rolling-shutter readout and its evidence (None: not estimated).
+        trajectory_smoothing: the time scale (s) of the spline that smoothed ``trajectory``'s positions (0: none).
     """
 
     results: list[FrameResult]
@@ -65,6 +66,7 @@ class SLAMRun:
     process_s: float = 0.0
     wall_s: float = 0.0
     readout: dict | None = None
+    trajectory_smoothing: float = 0.0
 
     @property
     def fps(self) -> float:
@@ -119,6 +121,7 @@ def run_slam(
         results=results, trajectory=system.trajectory(), keyframe_trajectory=system.keyframe_trajectory(),
         keyframes=list(system.keyframes), camera=camera, timings_ms=totals, process_s=process_s,
         wall_s=time.perf_counter() - t_start, readout=system.readout_summary(),
+        trajectory_smoothing=float(system.config.trajectory_smoothing),
     )
 
 
@@ -166,6 +169,7 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
     }
     if run.readout is not None:
         out["rolling_shutter"] = run.readout
+    out["trajectory_smoothing_s"] = run.trajectory_smoothing
     if evaluation is not None:
         out.update(evaluation)
     out.update(extra)

@@ -66,6 +66,10 @@ def test_slam_cli_writes_a_tum_trajectory_and_a_summary(dataset, tmp_path, capsy
     rs = summary["rolling_shutter"]
     assert rs["readout"] is None and rs["decided_at_frame"] is None and rs["frames"] <= 9
     assert "rolling shutter" in captured.out and "not decided" in captured.out
+    # the written trajectory's smoothing spline is stated, in result.json, the terminal and the report
+    assert summary["trajectory_smoothing_s"] == 0.05
+    assert "positions smoothed over the whole run" in captured.out
+    assert "positions smoothed over the whole run" in (out / "report.html").read_text()
 
 
 def test_the_summary_says_how_the_readout_was_chosen():
