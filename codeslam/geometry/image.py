@@ -13,7 +13,7 @@ import kornia
 import torch
 import torch.nn.functional as F
 
-from codeslam.geometry.camera import PinholeCamera
+from codeslam.geometry.camera import PinholeCamera, pixel_grid, unproject_jac_depth
 
 
 def rgb_to_gray(img: torch.Tensor) -> torch.Tensor:
@@ -131,11 +131,8 @@ def slant_cosine(depth: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
     xyz = kornia.geometry.depth.depth_to_3d_v2(depth[:, 0], K).permute(0, 3, 1, 2)  # (B, 3, H, W)
     grad = kornia.filters.spatial_gradient(xyz)  # (B, 3, 2, H, W): d/du, d/dv
     normals = torch.linalg.cross(grad[:, :, 0], grad[:, :, 1], dim=1)  # (B, 3, H, W), not unit
-    u = torch.arange(W, dtype=depth.dtype, device=depth.device)
-    v = torch.arange(H, dtype=depth.dtype, device=depth.device)
-    rx = (u[None, None, :] - params[:, 2, None, None]) / params[:, 0, None, None]  # (B, 1, W)
-    ry = (v[None, :, None] - params[:, 3, None, None]) / params[:, 1, None, None]  # (B, H, 1)
-    ray = torch.stack(torch.broadcast_tensors(rx, ry, torch.ones_like(rx * ry)), dim=1)  # (B, 3, H, W)
+    grid = pixel_grid(H, W, depth.dtype, depth.device)
+    ray = unproject_jac_depth(grid, params[:, None, None]).permute(0, 3, 1, 2)  # (B, 3, H, W), unit z
     lengths = ((normals * normals).sum(1, keepdim=True) * (ray * ray).sum(1, keepdim=True)).sqrt()
     cos = (normals * ray).sum(1, keepdim=True).abs() / lengths
     return torch.nan_to_num(cos, nan=0.0)  # no normal: 0 / 0
