@@ -789,30 +789,29 @@ class CodeSLAM:
     def trajectory(self) -> Trajectory:
         """Every processed frame's final pose: ``T_wk T_kf`` (its keyframe's latest pose), and with the config's
         ``trajectory: interpolated`` the frames between two keyframes moved toward the next one's
-        (:meth:`_interpolated`); then, with ``trajectory_smoothing``, the positions smoothed (:meth:`_smoothed`)."""
+        (:meth:`_interpolated`); then, with ``trajectory_smoothing``, the positions smoothed (:meth:`_smooth`)."""
         if not self._records:
             raise CodeSLAMError("no frame has been processed")
         poses = torch.stack([self._pose(r) for r in self._records])
+        t = np.array([r.timestamp for r in self._records])
         if self.config.trajectory == "interpolated":
             poses = self._interpolated(poses)
         if self.config.trajectory_smoothing > 0:
-            poses = self._smoothed(poses)
-        return Trajectory(np.array([r.timestamp for r in self._records]), poses)
+            self._smooth(poses, t)
+        return Trajectory(t, poses)
 
-    def _smoothed(self, poses: torch.Tensor) -> torch.Tensor:
-        """``poses`` with the positions of each map segment smoothed (:func:`~codeslam.slam.smoothing.
-        smooth_positions`): the tracked and relocalised frames are its measurements, the predicted ones are
-        placed by the spline alone, and the segment's first frame stays where it is."""
-        poses = poses.clone()
+    def _smooth(self, poses: torch.Tensor, t: np.ndarray) -> None:
+        """Smooth the positions of ``poses`` (one per record, at times ``t``) in place, each map segment on its own
+        (:func:`~codeslam.slam.smoothing.smooth_positions`): the tracked and relocalised frames are its
+        measurements, the predicted ones are placed by the spline alone, and the segment's first frame stays where
+        it is."""
         segment = np.array([self.keyframes[r.keyframe_id].segment for r in self._records])
-        t = np.array([r.timestamp for r in self._records], dtype=np.float64)
         ok = np.array([r.ok for r in self._records])
         for s in np.unique(segment):
             at = np.nonzero(segment == s)[0]
             x = smooth_positions(t[at], poses[at, :3, 3].numpy(), ok[at], self.config.trajectory_smoothing,
                                  anchor=True)  # the segment's first keyframe is its gauge
             poses[at, :3, 3] = torch.from_numpy(x).to(poses.dtype)
-        return poses
 
     def _interpolated(self, poses: torch.Tensor) -> torch.Tensor:
         """``poses`` (one per record, ``T_wk T_kf``) with each run of frames tracked against keyframe k, between
