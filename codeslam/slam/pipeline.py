@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,6 +30,7 @@ import numpy as np
 import torch
 
 from codeslam.data.base import Sequence
+from codeslam.data.frame import Frame
 from codeslam.data.trajectory import Trajectory, write_tum
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
@@ -51,7 +53,8 @@ class SLAMRun:
         trajectory: the final poses of the processed frames; keyframe_trajectory: the keyframes'.
         keyframes: every keyframe (marginalised ones with their final depth).
         camera: the camera the system ran in.
-        timings_ms: total wall time per stage (:data:`STAGES`) over the run.
+        timings_ms: total wall time per stage (:data:`STAGES`) over the run; "read" is the time the loop waited for
+            each frame (frames are read one ahead on a thread of their own, :func:`read_ahead`).
         process_s: wall time inside the system; wall_s: of the whole loop (reading and resampling included).
         readout: the online choice of the rolling-shutter readout and its evidence (None: not estimated).
         trajectory_smoothing: the time scale (s) of the spline that smoothed ``trajectory``'s positions (0: none).
@@ -94,14 +97,12 @@ def run_slam(
     process_s = 0.0
     t_start = time.perf_counter()
     try:
-        with system.tracking_threads():  # parallel: reading, too, keeps to the tracker's share of the cores
-            for n, i in enumerate(frames):
-                t0 = time.perf_counter()
-                frame = sequence[i]
+        with system.tracking_threads():  # parallel: the tracking thread keeps to its share of the cores
+            for n, (frame, read_ms) in enumerate(read_ahead(sequence, frames)):
                 t1 = time.perf_counter()
                 result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
                 process_s += time.perf_counter() - t1
-                result.timings_ms["read"] = 1e3 * (t1 - t0)
+                result.timings_ms["read"] = read_ms
                 results.append(result)
                 visualizer.update(frame, result, system)
                 if progress is not None:
@@ -123,6 +124,35 @@ def run_slam(
         wall_s=time.perf_counter() - t_start, readout=system.readout_summary(),
         trajectory_smoothing=float(system.config.trajectory_smoothing),
     )
+
+
+def read_ahead(sequence: Sequence, frames: list[int] | range) -> Iterator[tuple[Frame, float]]:
+    """The frames ``frames`` of ``sequence`` in order, each with the ms the caller waited for it: frame n + 1 is
+    read (decoded, undistorted) on a thread of its own while the caller works on frame n, as a camera driver or
+    a data loader delivers frames. Image decoding and torch's kernels release the GIL, so on a TUM frame the
+    caller waits for little of the 16 ms a read takes alone. One frame ahead at most: memory stays bounded and a
+    reading error surfaces at the frame it belongs to. The reading thread runs one torch thread (torch's count is
+    per thread), so it takes no cores from the tracking and mapping threads' share."""
+
+    def read(i: int) -> Frame:
+        torch.set_num_threads(1)  # a no-op after the first call on this thread
+        return sequence[i]
+
+    frames = list(frames)
+    if not frames:
+        return
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="codeslam-read")
+    try:
+        ahead = pool.submit(read, frames[0])
+        for k in range(len(frames)):
+            t0 = time.perf_counter()
+            frame = ahead.result()
+            waited = 1e3 * (time.perf_counter() - t0)
+            if k + 1 < len(frames):
+                ahead = pool.submit(read, frames[k + 1])
+            yield frame, waited
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 # ---- ground truth -------------------------------------------------------------------------------------------
