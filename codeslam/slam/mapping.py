@@ -11,7 +11,10 @@ torch releases the GIL inside its kernels, and the two threads share the map as 
   (``threads``) and the tracker keeps the rest (:class:`~codeslam.slam.system.CodeSLAM`). Each thread with its
   own torch threads on its own cores, rather than two OpenMP teams of the full size on the same cores: measured
   on the 2-core machine, a team's workers waiting for the next region cost the tracking thread 4x (TUM fr1/rpy,
-  tracking median 68 ms against 13 ms when the workers do not wait actively).
+  tracking median 68 ms against 13 ms when the workers do not wait actively). The one exception is a
+  keyframe's decoding (``decode_threads``, all of the cores by default), which the tracker mostly waits for: on
+  the HoloLens walk, parallel, 2 threads, the tracker spent 10 of 30 s waiting for decodings, and decoding with
+  both threads took the whole run 0.90x the time (farm-bench, 4 pairs; TUM fr1/rpy 1.01x, accuracy unchanged).
 * A keyframe is asked for by :meth:`Mapper.insert`; in parallel mode it is refused while the mapping thread is
   still busy with the previous one (the tracker asks again on a later frame), as PTAM's tracker does.
 * What the mapping thread finished (:class:`MappingResult`) is collected by the tracking thread with
@@ -24,7 +27,8 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import torch
@@ -33,6 +37,20 @@ from codeslam.geometry.lie import se3_inverse
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.frontend import SparseTrack, SparseTracker
 from codeslam.slam.window import MapKeyframe, SlidingWindow, WindowReport, WindowSnapshot
+
+
+@contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """torch's intra-op threads of the calling thread set to ``n`` inside the block (None: unchanged)."""
+    if n is None:
+        yield
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 @dataclass
@@ -66,13 +84,17 @@ class Mapper:
     """The window and the steps that change it; inline or on a background thread (module docstring).
 
     config: the system's settings; sparse: the feature tracker (None without features), for matching keyframes;
-    threads: torch threads of the mapping thread (parallel mode; None: torch's default for a new thread).
+    threads: torch threads of the mapping thread (parallel mode; None: torch's default for a new thread);
+    decode_threads: its torch threads while it decodes a keyframe (None: ``threads``). The tracker waits for a
+    keyframe's decoding whenever it cannot go on without it, so more threads than ``threads`` use the cores it
+    leaves idle then; the window solve, which the tracker does not wait for, keeps ``threads``.
     """
 
     def __init__(self, config: SLAMConfig, sparse: SparseTracker | None = None, parallel: bool = False,
-                 threads: int | None = None) -> None:
+                 threads: int | None = None, decode_threads: int | None = None) -> None:
         self.config = config
         self.threads = threads
+        self.decode_threads = decode_threads
         self.window = SlidingWindow(config.window)
         self.sparse = sparse
         self.parallel = parallel
@@ -171,7 +193,8 @@ class Mapper:
         paper's "4-keyframes setup") and linearises the prior at the previous window's optimum."""
         ms: dict[str, float] = {}
         t0 = time.perf_counter()
-        kf = job.decode()
+        with torch_threads(self.decode_threads if self.parallel else None):
+            kf = job.decode()
         t1 = time.perf_counter()
         ms["decode"] = 1e3 * (t1 - t0)
         if self.parallel:  # the tracker may switch to the keyframe now, before the window solve

@@ -52,7 +52,7 @@ from codeslam.slam.config import SLAMConfig
 from codeslam.slam.features import Features, scaled_camera
 from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
 from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
-from codeslam.slam.mapping import Mapper, MappingJob, MappingResult
+from codeslam.slam.mapping import Mapper, MappingJob, MappingResult, torch_threads
 from codeslam.slam.poses import project_to_se3, spread_correction
 from codeslam.slam.readout import CANDIDATES, ReadoutChoice
 from codeslam.slam.smoothing import smooth_positions
@@ -177,20 +177,6 @@ class _StageTimer:
         self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
 
 
-@contextmanager
-def _torch_threads(n: int | None) -> Iterator[None]:
-    """torch's intra-op threads of the calling thread set to ``n`` inside the block (None: unchanged)."""
-    if n is None:
-        yield
-        return
-    threads = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(threads)
-
-
 class CodeSLAM:
     """Dense monocular SLAM with learned depth codes (paper Sec. 4).
 
@@ -198,7 +184,11 @@ class CodeSLAM:
     the depth model's camera, to which every frame is resampled (the paper's intrinsics correction, Sec. 5.3);
     None takes the first frame's camera. parallel: map on a thread of its own beside the tracking
     (:mod:`codeslam.slam.mapping`); mapping_threads: that thread's torch threads (default half of
-    ``torch.get_num_threads()``, at least 1), the tracking thread keeps the rest while it processes a frame.
+    ``torch.get_num_threads()``, at least 1), the tracking thread keeps the rest while it processes a frame;
+    decode_threads: the mapping thread's torch threads while it decodes a keyframe (the network's forward pass and
+    code Jacobian; default all of ``torch.get_num_threads()``): the tracker mostly waits for that keyframe, so its
+    share of the cores would stand idle (HoloLens walk, parallel, 2 threads: a third of the run spent waiting for
+    decoding with 1 thread; see :class:`~codeslam.slam.mapping.Mapper`).
     alignment_threads: torch threads of the photometric alignment of each frame (at most the caller's; None: the
     caller's). Its problem, a few thousand pixels and 8 unknowns, gains little from OpenMP's threads, which spin
     between its small kernels against OpenCV's and the mapping's work (TUM fr1/rpy, sequential, 2 threads: track
@@ -207,7 +197,8 @@ class CodeSLAM:
 
     def __init__(self, config: SLAMConfig, depth_model: DepthModelFactory,
                  camera: PinholeCamera | None = None, parallel: bool = False,
-                 mapping_threads: int | None = None, alignment_threads: int | None = 1) -> None:
+                 mapping_threads: int | None = None, alignment_threads: int | None = 1,
+                 decode_threads: int | None = None) -> None:
         self.config = config
         self.depth_model = depth_model
         self.device = torch.device(config.device)
@@ -225,7 +216,10 @@ class CodeSLAM:
         if alignment_threads is not None and alignment_threads < 1:
             raise CodeSLAMError(f"alignment_threads must be >= 1, got {alignment_threads}")
         self._alignment_threads = alignment_threads
-        self.mapper = Mapper(config, parallel=parallel, threads=mapping_threads if parallel else None)
+        if decode_threads is not None and decode_threads < 1:
+            raise CodeSLAMError(f"decode_threads must be >= 1, got {decode_threads}")
+        self.mapper = Mapper(config, parallel=parallel, threads=mapping_threads if parallel else None,
+                             decode_threads=(decode_threads or total) if parallel else None)
         self.keyframes: list[MapKeyframe] = []  # every keyframe ever made, by id
         self.ref: MapKeyframe | None = None  # the keyframe frames are tracked against
         self.segment = 0
@@ -267,7 +261,7 @@ class CodeSLAM:
         """Parallel mode: the calling thread runs with the tracker's share of torch's threads inside the block
         (and gets its own count back after it), so that what it does beside :meth:`process` (reading the next
         frame, say) does not compete with the mapping thread for the cores either. A no-op when sequential."""
-        with _torch_threads(self._tracking_threads):
+        with torch_threads(self._tracking_threads):
             yield
 
     def _process(self, frame: Frame) -> FrameResult:
@@ -394,7 +388,7 @@ class CodeSLAM:
                                       T_kf_prior=T_kf_guess if len(self._records) >= 2 else None,
                                       prior_dt=self._since_tracked(frame), every_level=every_level)
 
-        with _torch_threads(None if n is None else min(n, torch.get_num_threads())):
+        with torch_threads(None if n is None else min(n, torch.get_num_threads())):
             track = align(init)
             if term is not None and track.feature_inliers < fcfg.retry_agreement * sparse.num_inliers:
                 # PnP's pose may have been a wrong start (FeatureConfig.retry_agreement): align from the motion
@@ -671,7 +665,7 @@ class CodeSLAM:
                                             track.affine, valid=frame.valid)
             return r.residual if r.overlap > 0 else math.nan
 
-        with _torch_threads(None if n is None else min(n, torch.get_num_threads())):
+        with torch_threads(None if n is None else min(n, torch.get_num_threads())):
             base = residual(0.0)
             candidates = [residual(c) for c in CANDIDATES]
         self.readout_choice.add(base, candidates, views.frame.index)

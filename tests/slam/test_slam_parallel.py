@@ -61,32 +61,49 @@ def test_an_error_in_the_mapping_thread_reaches_the_caller():
     assert bool(torch.tensor(calls["n"] >= 2))
 
 
-def test_the_mapping_thread_and_the_tracker_split_torch_threads():
-    """The mapping thread runs with its own torch thread count (half by default), the tracker with the rest while
-    it processes a frame, and the caller's setting is back afterwards."""
-    seen = {}
+def test_the_mapping_thread_and_the_tracker_split_torch_threads(monkeypatch):
+    """The mapping thread runs its window solves with its own torch thread count (half by default) and decodes
+    keyframes with all of them (the tracker mostly waits for that), the tracker runs with the rest while it
+    processes a frame, and the caller's setting is back afterwards."""
+    import threading
+
+    from codeslam.slam.window import SlidingWindow
+
+    decoded, solved = {}, {}
     factory = standin_depth_model()
 
     def recording(frame):  # keyframes after the first are decoded on the mapping thread
-        import threading
-
-        seen.setdefault(threading.current_thread().name, set()).add(torch.get_num_threads())
+        decoded.setdefault(threading.current_thread().name, set()).add(torch.get_num_threads())
         return factory(frame)
 
+    optimise = SlidingWindow.optimise
+
+    def recording_optimise(self, *args, **kwargs):
+        solved.setdefault(threading.current_thread().name, set()).add(torch.get_num_threads())
+        return optimise(self, *args, **kwargs)
+
+    monkeypatch.setattr(SlidingWindow, "optimise", recording_optimise)
     before = torch.get_num_threads()
     torch.set_num_threads(4)
     try:
-        seq = MemorySequence(preset_frames(21, 12, "walk", 10.0))
-        system = CodeSLAM(SLAMConfig(), recording, parallel=True, mapping_threads=1)
-        assert system._tracking_threads == 3
-        run_slam(seq, system, seq.frames[0].camera)
-        assert torch.get_num_threads() == 4  # the caller's count, restored after every frame
+        for decode_threads, expected in ((None, {4}), (2, {2})):
+            decoded.clear()
+            solved.clear()
+            seq = MemorySequence(preset_frames(21, 12, "walk", 10.0))
+            system = CodeSLAM(SLAMConfig(), recording, parallel=True, mapping_threads=1,
+                              decode_threads=decode_threads)
+            assert system._tracking_threads == 3
+            run_slam(seq, system, seq.frames[0].camera)
+            assert torch.get_num_threads() == 4  # the caller's count, restored after every frame
+            assert decoded.get("codeslam-mapping") == expected, decoded
+            assert solved.get("codeslam-mapping") == {1}, solved
+            assert decoded.get("MainThread") == {3}, decoded  # the first keyframe, decoded inline by the tracker
     finally:
         torch.set_num_threads(before)
-    assert seen.get("codeslam-mapping") == {1}, seen
-    assert seen.get("MainThread") == {3}, seen  # the first keyframe, decoded inline by the tracking thread
     with pytest.raises(Exception, match="mapping_threads"):
         CodeSLAM(SLAMConfig(), factory, parallel=True, mapping_threads=0)
+    with pytest.raises(Exception, match="decode_threads"):
+        CodeSLAM(SLAMConfig(), factory, parallel=True, decode_threads=0)
 
 
 def test_the_alignment_runs_on_its_own_thread_count_and_the_mapping_on_the_callers():
