@@ -6,7 +6,8 @@ memory, by default the walk at 10 frames/s) and each mapping mode it runs the wh
 
 * frames per second of the whole loop, reading included (and of the system alone);
 * per-frame stages (read, resample, features, track) and per-keyframe stages (decode, marginalise, window): median
-  and 90th percentile in ms;
+  and 90th percentile in ms ("read" is the time the loop waited for a frame: frames are read one ahead on a
+  thread of their own, :func:`codeslam.slam.pipeline.read_ahead`);
 * map updates (window solves) per second of wall time, keyframes, failed frames;
 * peak resident memory (MB);
 * ATE Sim(3) and the orientation error after the best rotation alignment, so a speed-up is read beside what it
