@@ -152,8 +152,9 @@ def guided_mask(uv_pred: np.ndarray, uv_b: np.ndarray, radius: float) -> np.ndar
     thr = np.where(np.isfinite(a).all(1), (a * a).sum(1) - np.float32(radius * radius), np.float32(np.nan))
     # The product in torch, not NumPy: NumPy's OpenBLAS runs a thread pool of its own whose workers spin for a
     # while after every call, beside torch's threads and the mapping thread (a parallel TUM fr1/rpy run on 2 cores:
-    # 10-12 of 41 s of CPU in one OpenBLAS worker, 8.3 -> 10.1 frames/s without it). torch keeps to the calling
-    # thread's share of the cores. NaN compares False in either.
+    # 10-12 of 41 s of CPU in one OpenBLAS worker; the wall time alone moved within noise, since the worker yields,
+    # but it left no idle core for reading ahead). torch keeps to the calling thread's share of the cores. NaN
+    # compares False in either.
     prod = torch.from_numpy(a_aug) @ torch.from_numpy(b_aug).T
     return (prod >= torch.from_numpy(thr)[:, None]).numpy()
 

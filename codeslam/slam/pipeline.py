@@ -97,7 +97,7 @@ def run_slam(
     process_s = 0.0
     t_start = time.perf_counter()
     try:
-        with system.tracking_threads():  # parallel: the tracking thread keeps to its share of the cores
+        with system.tracking_threads():  # parallel: this thread keeps to the tracker's share of the cores
             for n, (frame, read_ms) in enumerate(read_ahead(sequence, frames)):
                 t1 = time.perf_counter()
                 result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
@@ -134,22 +134,19 @@ def read_ahead(sequence: Sequence, frames: list[int] | range) -> Iterator[tuple[
     reading error surfaces at the frame it belongs to. The reading thread runs one torch thread (torch's count is
     per thread), so it takes no cores from the tracking and mapping threads' share."""
 
-    def read(i: int) -> Frame:
-        torch.set_num_threads(1)  # a no-op after the first call on this thread
-        return sequence[i]
-
     frames = list(frames)
     if not frames:
         return
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="codeslam-read")
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="codeslam-read", initializer=torch.set_num_threads,
+                              initargs=(1,))
     try:
-        ahead = pool.submit(read, frames[0])
+        ahead = pool.submit(sequence.__getitem__, frames[0])
         for k in range(len(frames)):
             t0 = time.perf_counter()
             frame = ahead.result()
             waited = 1e3 * (time.perf_counter() - t0)
             if k + 1 < len(frames):
-                ahead = pool.submit(read, frames[k + 1])
+                ahead = pool.submit(sequence.__getitem__, frames[k + 1])
             yield frame, waited
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

@@ -259,8 +259,8 @@ class CodeSLAM:
     @contextmanager
     def tracking_threads(self) -> Iterator[None]:
         """Parallel mode: the calling thread runs with the tracker's share of torch's threads inside the block
-        (and gets its own count back after it), so that what it does beside :meth:`process` (reading the next
-        frame, say) does not compete with the mapping thread for the cores either. A no-op when sequential."""
+        (and gets its own count back after it), so that what it does beside :meth:`process` (a viewer's update,
+        say) does not compete with the mapping thread for the cores either. A no-op when sequential."""
         with torch_threads(self._tracking_threads):
             yield
 
