@@ -339,6 +339,15 @@ class WindowConfig:
     scale errs by tens of percent from view to view and the window rightly reconciles it (at 0.4, a factor 1.5,
     solves on the generator's walk were rejected for that and its ATE was 2.4 times higher); what this catches is
     a depth running away."""
+    motion_prior_acceleration: float = 1.0
+    """Constant-velocity prior on consecutive keyframes' positions (:mod:`codeslam.slam.velocity_prior`): the
+    acceleration (m/s^2, map units) the camera may hold between two keyframe intervals; 0 switches it off.
+    Measured (docs/results/slam_table.md, session of 2026-11-27, fifth; 1 thread, network depth, off -> 1): the
+    generator's fast turn 14, whose keyframes on a blank wall the window moved 73-168 mm apart, 6.5 / 7.6 / 7.5
+    -> 2.0 / 3.0 / 2.5 deg from start frames 0 / 1 / 2; every second HoloLens frame 1.15 / 0.43 / 1.03 -> 1.01 /
+    0.32 / 0.96 m; a generator corridor 0.256 / 0.257 / 0.290 -> 0.219 / 0.156 / 0.268 m; fast turn 13 0.012 /
+    0.010 / 0.012 -> 0.014 / 0.015 / 0.014 m; the rest within 0.004 m or better. At 4 it acted too little
+    (fast turn 14: 5.2 deg; every second HoloLens frame: 1.20 m), 0.5 was no better than 1."""
     interruptible: bool = True
     """Parallel mapping: a keyframe the tracker needs at once (the last one is leaving the view) stops the running
     window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops
@@ -351,6 +360,8 @@ class WindowConfig:
             raise ConfigError(f"window.min_pair_overlap must lie in [0, 1], got {self.min_pair_overlap}")
         if not self.depth_scale_sigma >= 0:
             raise ConfigError(f"window.depth_scale_sigma must be >= 0, got {self.depth_scale_sigma}")
+        if not self.motion_prior_acceleration >= 0:
+            raise ConfigError(f"window.motion_prior_acceleration must be >= 0, got {self.motion_prior_acceleration}")
         if not (isinstance(self.code_directions, int) and self.code_directions >= 0):
             raise ConfigError(f"window.code_directions must be an integer >= 0, got {self.code_directions}")
         if self.sfm.rolling_shutter:  # the window's marginalisation and the tracker have no readout rotations

@@ -55,6 +55,7 @@ from codeslam.slam.config import WindowConfig
 from codeslam.slam.frontend import KeyframeFeatures
 from codeslam.slam.poses import project_to_se3
 from codeslam.slam.reprojection import DecodedReprojectionTerm, StackedReprojectionTerm, keyframe_pair_term
+from codeslam.slam.velocity_prior import VelocityPrior
 
 
 @dataclass
@@ -325,6 +326,9 @@ class SlidingWindow:
         levels = build_levels([k.keyframe for k in self.keyframes], cfg.pyramid_levels, dtype, device)
         n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
         sparse_terms = [StackedReprojectionTerm(self._pair_terms())]  # matched keypoints: level-independent
+        if self.cfg.motion_prior_acceleration > 0:  # consecutive keyframes' velocities: level-independent too
+            sparse_terms.append(VelocityPrior.consecutive([k.timestamp for k in self.keyframes],
+                                                          self.cfg.motion_prior_acceleration))
         for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
             # Coarser levels sum over fewer pixels: scale the prior alike so it keeps its weight against the data.
             scale = levels[lvl].uv.shape[0] / n_prior if self.cfg.scale_prior_with_level else 1.0
@@ -434,6 +438,9 @@ class SlidingWindow:
             g += g_d.to(torch.float64)
         # matched keypoints of the pairs that involve it
         StackedReprojectionTerm(self._pair_terms({old_id})).add_to(H, g, layout, state)
+        if self.cfg.motion_prior_acceleration > 0:  # the velocity prior of the triple that starts with it
+            VelocityPrior.consecutive([k.timestamp for k in kfs[:3]],
+                                      self.cfg.motion_prior_acceleration).add_to(H, g, layout, state)
         if self.cfg.depth_scale_sigma > 0:  # the leaving keyframe's scale prior
             lvl = self.prior_level
             level = build_levels([k.keyframe for k in kfs[:1]], [lvl], dtype, device)[lvl]
