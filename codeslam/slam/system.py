@@ -34,7 +34,7 @@ import dataclasses
 import math
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -264,6 +264,12 @@ class CodeSLAM:
         with torch_threads(self._tracking_threads):
             yield
 
+    def _aligning_threads(self) -> AbstractContextManager[None]:
+        """The photometric alignments' torch threads (``alignment_threads``, at most the caller's) inside the
+        block."""
+        n = self._alignment_threads
+        return torch_threads(None if n is None else min(n, torch.get_num_threads()))
+
     def _process(self, frame: Frame) -> FrameResult:
         timer = _StageTimer(self.device)
         self._check(frame)
@@ -378,7 +384,6 @@ class CodeSLAM:
                 if fcfg.weight > 0:
                     term = self.sparse.term(ref.sparse, views.features, sparse, self.dtype, self.device)
         frame = views.frame
-        n = self._alignment_threads
 
         def align(start: torch.Tensor, every_level: bool = False) -> TrackResult:
             return self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, start,
@@ -388,7 +393,7 @@ class CodeSLAM:
                                       T_kf_prior=T_kf_guess if len(self._records) >= 2 else None,
                                       prior_dt=self._since_tracked(frame), every_level=every_level)
 
-        with torch_threads(None if n is None else min(n, torch.get_num_threads())):
+        with self._aligning_threads():
             track = align(init)
             if term is not None and track.feature_inliers < fcfg.retry_agreement * sparse.num_inliers:
                 # PnP's pose may have been a wrong start (FeatureConfig.retry_agreement): align from the motion
@@ -656,7 +661,6 @@ class CodeSLAM:
         ``turn``) aligned again to ``ref`` (turn ``kf_turn``, rectified by ``kf_readout`` times it), photometrically
         from its tracked pose, under readout 0 and each candidate; the choice so far holds from the next frame."""
         net, _, sensor = views.raw
-        n = self._alignment_threads
 
         def residual(c: float) -> float:  # the frame keeps the keyframe's distortion under hypothesis c
             readout = c * (turn - kf_turn) + kf_readout * kf_turn
@@ -665,7 +669,7 @@ class CodeSLAM:
                                             track.affine, valid=frame.valid)
             return r.residual if r.overlap > 0 else math.nan
 
-        with torch_threads(None if n is None else min(n, torch.get_num_threads())):
+        with self._aligning_threads():
             base = residual(0.0)
             candidates = [residual(c) for c in CANDIDATES]
         self.readout_choice.add(base, candidates, views.frame.index)
