@@ -20,7 +20,8 @@ order, so ``dp / dxi = [I, -[p]_x]`` and::
 
     dr/dxi_i = P_i / (d1 sigma),   dr/dxi_j = -(1/d1 + 1/d2) P_j / sigma,   dr/dxi_k = P_k / (d2 sigma)
 
-written by hand (three 3x6 blocks) and checked against autograd in float64 (tests/slam/test_velocity_prior.py).
+written by hand (three 3x6 blocks; ``P = [I, -[p]_x]`` is :func:`~codeslam.geometry.lie.se3_act_jac_pose` at the
+origin) and checked against autograd in float64 (tests/slam/test_slam_velocity_prior.py).
 The term has the interface of :class:`~codeslam.sfm.variables.LinearPrior` (``cost``, ``add_to``).
 """
 
@@ -30,7 +31,7 @@ from dataclasses import dataclass
 
 import torch
 
-from codeslam.geometry.lie import hat
+from codeslam.geometry.lie import se3_act_jac_pose
 from codeslam.sfm.variables import POSE, BlockId, SfMState, VariableLayout
 
 
@@ -69,31 +70,39 @@ class VelocityPrior:
         sig = [self.acceleration * 0.5 * (d1 + d2) for d1, d2 in self.gaps]
         return torch.tensor(w, dtype=dtype, device=device) / torch.tensor(sig, dtype=dtype, device=device)[:, None]
 
+    def _gather(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor]:
+        """-> the triples' poses T_wc (T, 3 keyframes, 4, 4) and their coefficients (T, 3)."""
+        idx = torch.tensor(self.triples, dtype=torch.long, device=state.poses.device)  # (T, 3)
+        T = state.poses[idx]
+        return T, self._weights(T.dtype, T.device)
+
     def residuals(self, state: SfMState) -> torch.Tensor:
         """(T, 3) ``r`` of each triple."""
-        idx = torch.tensor(self.triples, dtype=torch.long, device=state.poses.device)  # (T, 3)
-        p = state.poses[idx][..., :3, 3]  # (T, 3 keyframes, 3)
-        w = self._weights(p.dtype, p.device)  # (T, 3)
-        return (w[..., None] * p).sum(1)  # = (v2 - v1) / sigma
+        T, w = self._gather(state)
+        return (w[..., None] * T[..., :3, 3]).sum(1)  # = (v2 - v1) / sigma
 
     def cost(self, state: SfMState) -> torch.Tensor:
         if not self.triples:
             return state.poses.new_zeros(())
         return 0.5 * self.residuals(state).square().sum()
 
+    def linearise(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor]:
+        """-> ``r`` (T, 3) and ``dr / dxi`` (T, 3 keyframes, 3, 6) of each triple's keyframes, in the order of the
+        triple. The camera centre is the image of the origin, ``p = T 0``: ``dp / dxi = [I, -p^]``."""
+        T, w = self._gather(state)
+        r = (w[..., None] * T[..., :3, 3]).sum(1)
+        dp = se3_act_jac_pose(T, T.new_zeros(T.shape[:-2] + (3,)))  # (T, 3, 3, 6)
+        return r, w[..., None, None] * dp
+
     def jacobians(self, state: SfMState) -> torch.Tensor:
-        """(T, 3 keyframes, 3, 6) ``dr / dxi`` of each triple's keyframes, in the order of the triple."""
-        idx = torch.tensor(self.triples, dtype=torch.long, device=state.poses.device)
-        p = state.poses[idx][..., :3, 3]  # (T, 3, 3)
-        eye = torch.eye(3, dtype=p.dtype, device=p.device).expand(*p.shape[:-1], 3, 3)
-        dp = torch.cat([eye, -hat(p)], dim=-1)  # (T, 3, 3, 6): [I, -[p]_x]
-        return self._weights(p.dtype, p.device)[..., None, None] * dp
+        """(T, 3 keyframes, 3, 6) ``dr / dxi`` (:meth:`linearise`)."""
+        return self.linearise(state)[1]
 
     def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
         if not self.triples:
             return
-        r = self.residuals(state).to(g.dtype)
-        J = self.jacobians(state).to(H.dtype)
+        r, J = self.linearise(state)
+        r, J = r.to(g.dtype), J.to(H.dtype)
         for t, triple in enumerate(self.triples):
             slices = [layout.slice(BlockId(POSE, i)) for i in triple]
             for a, sa in enumerate(slices):
