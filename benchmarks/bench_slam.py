@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import multiprocessing as mp
+import queue
 import resource
 import sys
 import time
@@ -99,13 +100,29 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
     })
 
 
+def _run_or_report(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
+    """:func:`_run`, with any error handed to the parent as one line (the parent stops the bench with it)."""
+    try:
+        _run(spec, mode, args, out)
+    except BaseException as e:  # noqa: BLE001 - whatever ended the run, the parent must hear of it
+        out.put({"error": f"{type(e).__name__}: {e}"})
+
+
 def measure(spec: dict, mode: str, args: dict) -> dict:
     ctx = mp.get_context("spawn")  # a fresh process per run: its own peak memory, no state shared
     q = ctx.Queue()
-    p = ctx.Process(target=_run, args=(spec, mode, args, q))
+    p = ctx.Process(target=_run_or_report, args=(spec, mode, args, q))
     p.start()
-    result = q.get()
+    while True:  # a run that dies without a word (killed, out of memory) must not leave the bench waiting
+        try:
+            result = q.get(timeout=1.0)
+            break
+        except queue.Empty:
+            if not p.is_alive():
+                sys.exit(f"bench_slam: the {mode} run ended without a result (exit code {p.exitcode})")
     p.join()
+    if "error" in result:
+        sys.exit(f"bench_slam: the {mode} run failed: {result['error']}")
     return result
 
 
@@ -129,6 +146,13 @@ def main() -> None:
     from codeslam.errors import CodeSLAMError
     from codeslam.slam.config import load_config
 
+    if a.dataset:  # opened once here too, so that a wrong path stops the bench before any run
+        from codeslam.data.registry import open_dataset
+
+        try:
+            open_dataset(a.dataset)
+        except CodeSLAMError as e:
+            sys.exit(f"bench_slam: {e}")
     for c in a.config:  # each overlay read once here, so that a bad one stops the bench before any run
         try:
             load_config(None if c == "default" else c)
