@@ -76,10 +76,14 @@ class VelocityPrior:
         T = state.poses[idx]
         return T, self._weights(T.dtype, T.device)
 
+    @staticmethod
+    def _residuals(T: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """The triples' poses (T, 3, 4, 4) and coefficients (T, 3) -> (T, 3) ``r``."""
+        return (w[..., None] * T[..., :3, 3]).sum(1)  # = (v2 - v1) / sigma
+
     def residuals(self, state: SfMState) -> torch.Tensor:
         """(T, 3) ``r`` of each triple."""
-        T, w = self._gather(state)
-        return (w[..., None] * T[..., :3, 3]).sum(1)  # = (v2 - v1) / sigma
+        return self._residuals(*self._gather(state))
 
     def cost(self, state: SfMState) -> torch.Tensor:
         if not self.triples:
@@ -90,7 +94,7 @@ class VelocityPrior:
         """-> ``r`` (T, 3) and ``dr / dxi`` (T, 3 keyframes, 3, 6) of each triple's keyframes, in the order of the
         triple. The camera centre is the image of the origin, ``p = T 0``: ``dp / dxi = [I, -p^]``."""
         T, w = self._gather(state)
-        r = (w[..., None] * T[..., :3, 3]).sum(1)
+        r = self._residuals(T, w)
         dp = se3_act_jac_pose(T, T.new_zeros(T.shape[:-2] + (3,)))  # (T, 3, 3, 6)
         return r, w[..., None, None] * dp
 
