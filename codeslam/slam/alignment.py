@@ -43,13 +43,13 @@ import torch.nn.functional as F
 from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH, MIN_KEYPOINT_DEPTH
 from codeslam.geometry.camera import PinholeCamera, unproject_jac_depth
 from codeslam.geometry.image import image_gradients, image_pyramid, pixels_to_grid, pyramid_cameras, rgb_to_gray
-from codeslam.geometry.lie import hat, se3_exp_host
+from codeslam.geometry.lie import hat, se3_exp_host, se3_inverse, se3_log_host
 from codeslam.geometry.proximity import prox_to_depth
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
 from codeslam.sfm.keyframes import Keyframe, build_levels, real_pixels
 from codeslam.sfm.residuals import huber_cost_and_weight, interpolant_gradient, slant_weight
-from codeslam.sfm.variables import AFFINE_DIM, POSE_DIM, SfMState, VariableLayout
+from codeslam.sfm.variables import AFFINE_DIM, POSE, POSE_DIM, BlockId, SfMState, VariableLayout
 from codeslam.slam.reprojection import ReprojectionTerm
 
 
@@ -186,7 +186,8 @@ class AlignmentEvaluation:
     where masked); sigma: () the photometric sigma; R_BA (3, 3), t_BA (3,): the relative pose; x: (3, N) the
     points in B; gray_B: (N,) I_B[v]; grad_B: (2, N) gradient of I_B at v (d/du, d/dv); gain: () exp(a); cost: ()
     the robust photometric cost (masked rows priced at the Huber threshold, loss (i)); keypoints: what
-    :meth:`KeypointTerm.evaluate` gave at the same pose (None without keypoints).
+    :meth:`KeypointTerm.evaluate` gave at the same pose (None without keypoints); prior_deltas: each pose prior's
+    ``d`` at the same pose (:meth:`PosePrior.delta_of`).
     """
 
     r: torch.Tensor
@@ -201,6 +202,7 @@ class AlignmentEvaluation:
     gain: torch.Tensor
     cost: torch.Tensor
     keypoints: tuple[torch.Tensor, ...] | None = None
+    prior_deltas: list[torch.Tensor] | None = None
 
 
 def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Tensor, t_BA: torch.Tensor,
@@ -259,18 +261,19 @@ def photometric_jacobian(x: torch.Tensor, grad_B: torch.Tensor, gray_B: torch.Te
     -> (8, M), one row per variable (rho, phi, a, b).
     """
     fx, fy = params[0], params[1]
+    J = x.new_empty((POSE_DIM + AFFINE_DIM, x.shape[1]))  # each row written in place (no stack of 8 copies)
     inv_z = 1.0 / x[2]
     dr_dv = -gain * grad_B  # (2, M): - alpha dI_B[v]/dv
     # dr/dx = dr/dv dpi/dx with dpi/dx = [[fx/z, 0, -fx x/z^2], [0, fy/z, -fy y/z^2]]: the factor of Eqs. 7-8.
-    a_x = dr_dv[0] * fx * inv_z
-    a_y = dr_dv[1] * fy * inv_z
-    a_z = -(a_x * x[0] + a_y * x[1]) * inv_z
-    rows = [
-        a_x, a_y, a_z,  # Eq. 7: d/d t
-        x[1] * a_z - x[2] * a_y, x[2] * a_x - x[0] * a_z, x[0] * a_y - x[1] * a_x,  # Eq. 8 in SE(3) left form: x x a
-        -gain * gray_B, -torch.ones_like(gray_B),  # d/d(a, b)
-    ]
-    return torch.stack(rows)
+    a_x = torch.mul(dr_dv[0] * fx, inv_z, out=J[0])  # Eq. 7: d/d t
+    a_y = torch.mul(dr_dv[1] * fy, inv_z, out=J[1])
+    a_z = torch.mul(-(a_x * x[0] + a_y * x[1]), inv_z, out=J[2])
+    torch.sub(x[1] * a_z, x[2] * a_y, out=J[3])  # Eq. 8 in SE(3) left form: x x a
+    torch.sub(x[2] * a_x, x[0] * a_z, out=J[4])
+    torch.sub(x[0] * a_y, x[1] * a_x, out=J[5])
+    torch.mul(-gain, gray_B, out=J[6])  # d/d(a, b)
+    J[7] = -1.0
+    return J
 
 
 def frame_pose_map(R_BA: torch.Tensor, t_BA: torch.Tensor) -> torch.Tensor:
@@ -326,12 +329,50 @@ class KeypointTerm:
         """x (3, M) the points in B -> (6, 2, M) ``d r / d xi_BA`` (left increment of T_BA): each residual row a
         (a row of d pi / d x) gives ``[a, x x a]`` (Eqs. 7-8, as :func:`~codeslam.sfm.warp.pose_row`)."""
         fx, fy = self.params[0], self.params[1]
+        J = x.new_zeros((POSE_DIM, 2, x.shape[1]))  # written in place: no stacks of copies
         inv_z = 1.0 / x[2]
-        zero = torch.zeros_like(inv_z)
-        a = torch.stack([torch.stack([fx * inv_z, zero, -fx * x[0] * inv_z * inv_z]),  # d u / d x, (3, M)
-                         torch.stack([zero, fy * inv_z, -fy * x[1] * inv_z * inv_z])], dim=1)  # (3, 2, M)
-        x_ = x.unsqueeze(1).expand_as(a)
-        return torch.cat([a, torch.linalg.cross(x_, a, dim=0)])  # (6, 2, M)
+        torch.mul(fx, inv_z, out=J[0, 0])  # d u / d x = (fx/z, 0, -fx x/z^2)
+        torch.mul(-fx * x[0] * inv_z, inv_z, out=J[2, 0])
+        torch.mul(fy, inv_z, out=J[1, 1])  # d v / d x = (0, fy/z, -fy y/z^2)
+        torch.mul(-fy * x[1] * inv_z, inv_z, out=J[2, 1])
+        torch.linalg.cross(x.unsqueeze(1).expand(3, 2, x.shape[1]), J[:3], dim=0, out=J[3:])  # x x a
+        return J  # (6, 2, M)
+
+
+class PosePrior:
+    """``0.5 d^T H d`` with ``d = log(T_i T0^-1)`` on one pose block: a :class:`~codeslam.sfm.variables.LinearPrior`
+    without its gradient term, its logarithm taken on the host (:func:`~codeslam.geometry.lie.se3_log_host`): the
+    tracker evaluates it at every iteration, and the generic path made tracking 40% slower (TUM fr1/rpy, 45 -> 63 ms
+    median per frame). ``cost``/``add_to`` read the generic state; :class:`TrackingProblem` calls ``delta_of``,
+    ``cost_of`` and ``add_delta`` with the frame's pose itself and the ``d`` of its evaluation: the same values
+    without the generic state's copies and one logarithm per iteration instead of two (with the Jacobians written
+    in place: 40 captured TUM fr1/rpy problems solved 7% faster, identical poses)."""
+
+    def __init__(self, index: int, H: torch.Tensor, T0: torch.Tensor) -> None:
+        self.block, self.H, self.T0_inv = BlockId(POSE, index), H, se3_inverse(T0)
+
+    def delta_of(self, T: torch.Tensor) -> torch.Tensor:
+        """(4, 4) the block's pose -> (6,) ``d = log(T T0^-1)``."""
+        return se3_log_host(T @ self.T0_inv.to(T.dtype)).to(self.H.dtype)
+
+    def cost_of(self, d: torch.Tensor) -> torch.Tensor:
+        return 0.5 * d @ self.H @ d
+
+    def add_delta(self, H: torch.Tensor, g: torch.Tensor, sl: slice, d: torch.Tensor) -> None:
+        """Add the prior's Hessian and gradient ``H d`` (``d(d)/d(increment) ~ I``) at ``d`` to the block ``sl``."""
+        H_p = self.H.to(H.dtype)
+        H[sl, sl] += H_p
+        g[sl] += H_p @ d.to(g.dtype)
+
+    def delta(self, state: SfMState) -> torch.Tensor:
+        return self.delta_of(state.poses[self.block.index])
+
+    def cost(self, state: SfMState) -> torch.Tensor:
+        return self.cost_of(self.delta(state))
+
+    def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
+        """Add the prior's Hessian and gradient in place (the generic problem's interface)."""
+        self.add_delta(H, g, layout.slice(self.block), self.delta(state))
 
 
 # ---- the problem of levenberg_marquardt ---------------------------------------------------------------------
@@ -377,7 +418,15 @@ class TrackingProblem:
 
     def __init__(self, ref: ReferenceLevel, frame: FrameLevel, cfg: SfMConfig, keypoints: KeypointTerm | None = None,
                  terms: Sequence = ()) -> None:
-        self.ref, self.frame, self.cfg, self.keypoints, self.terms = ref, frame, cfg, keypoints, list(terms)
+        self.ref, self.frame, self.cfg, self.keypoints = ref, frame, cfg, keypoints
+        # Priors on the frame's pose (the motion model) read the pose itself; other terms the generic state.
+        self.pose_priors = [t for t in terms if type(t) is PosePrior and t.block.index == 1]
+        self.terms = [t for t in terms if not (type(t) is PosePrior and t.block.index == 1)]
+        # The affine prior's constants, made once instead of at every evaluation and linearisation.
+        sigma = torch.as_tensor(cfg.affine_prior_sigma, dtype=ref.gray.dtype, device=ref.gray.device)
+        self._affine_sigma = sigma
+        self._affine_inv_var = 1.0 / sigma**2
+        self._affine_H = torch.diag(self._affine_inv_var)
         self._evaluated: list[tuple[TrackingState, float, AlignmentEvaluation]] = []
 
     def evaluate(self, state: TrackingState) -> tuple[float, AlignmentEvaluation]:
@@ -388,10 +437,14 @@ class TrackingProblem:
         ev = photometric_residuals(self.ref, self.frame, R_BA, t_BA, affine, self.cfg)
         cost = ev.cost
         if self.cfg.affine_brightness:  # Gaussian prior on (log-gain, bias)
-            cost = cost + 0.5 * (state.affine / state.affine.new_tensor(self.cfg.affine_prior_sigma)).square().sum()
+            cost = cost + 0.5 * (state.affine / self._affine_sigma.to(state.affine.dtype)).square().sum()
         if self.keypoints is not None:
             ev.keypoints = self.keypoints.evaluate(R_BA, t_BA)
             cost = cost + ev.keypoints[0]
+        if self.pose_priors:
+            ev.prior_deltas = [p.delta_of(state.T_kf) for p in self.pose_priors]
+            for p, d in zip(self.pose_priors, ev.prior_deltas):
+                cost = cost + p.cost_of(d).to(cost.dtype)
         if self.terms:
             generic = state.to_sfm()
             for term in self.terms:
@@ -426,9 +479,11 @@ class TrackingProblem:
         H = (M.T @ H_rel @ M)[:n, :n]
         g = (M.T @ g_rel)[:n]
         if self.cfg.affine_brightness:
-            inv_var = 1.0 / H.new_tensor(self.cfg.affine_prior_sigma) ** 2
-            H[POSE_DIM:, POSE_DIM:] += torch.diag(inv_var)
+            inv_var = self._affine_inv_var.to(H.dtype)
+            H[POSE_DIM:, POSE_DIM:] += self._affine_H.to(H.dtype)
             g[POSE_DIM:] += inv_var * state.affine.to(g.dtype)
+        for p, d in zip(self.pose_priors, ev.prior_deltas or ()):  # the deltas of the evaluation at this state
+            p.add_delta(H, g, layout.slice(p.block), d)
         if self.terms:
             generic = state.to_sfm()
             for term in self.terms:

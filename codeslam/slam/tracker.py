@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 import torch
 
 from codeslam.geometry.camera import PinholeCamera
-from codeslam.geometry.lie import se3_inverse, se3_log_host
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.solver import PairProblem, levenberg_marquardt
@@ -29,6 +28,7 @@ from codeslam.sfm.variables import AFFINE_DIM, CODE, POSE, BlockId, SfMState, Va
 from codeslam.slam.alignment import (
     FramePyramid,
     KeypointTerm,
+    PosePrior,
     TrackingProblem,
     TrackingReference,
     TrackingState,
@@ -86,30 +86,6 @@ class TrackResult:
 
 SOLVERS = ("dedicated", "generic")
 REFERENCE_CACHE_SIZE = 4  # keyframes whose tracking data are kept (the reference and relocalisation candidates)
-
-
-class PosePrior:
-    """``0.5 d^T H d`` with ``d = log(T_i T0^-1)`` on one pose block: a :class:`~codeslam.sfm.variables.LinearPrior`
-    without its gradient term, its logarithm taken on the host (:func:`~codeslam.geometry.lie.se3_log_host`): the
-    tracker evaluates it at every iteration, and the generic path made tracking 40% slower (TUM fr1/rpy, 45 -> 63 ms
-    median per frame)."""
-
-    def __init__(self, index: int, H: torch.Tensor, T0: torch.Tensor) -> None:
-        self.block, self.H, self.T0_inv = BlockId(POSE, index), H, se3_inverse(T0)
-
-    def delta(self, state: SfMState) -> torch.Tensor:
-        return se3_log_host(state.poses[self.block.index] @ self.T0_inv.to(state.poses.dtype)).to(self.H.dtype)
-
-    def cost(self, state: SfMState) -> torch.Tensor:
-        d = self.delta(state)
-        return 0.5 * d @ self.H @ d
-
-    def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
-        """Add the prior's Hessian and gradient ``H d`` (``d(d)/d(increment) ~ I``) in place."""
-        sl = layout.slice(self.block)
-        H_p = self.H.to(H.dtype)
-        H[sl, sl] += H_p
-        g[sl] += H_p @ self.delta(state).to(g.dtype)
 
 
 class PhotometricTracker:
