@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import torch
 
+from codeslam.constants import MIN_KEYPOINT_DEPTH
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
@@ -173,12 +174,17 @@ class PhotometricTracker:
         if started_by_features and cfg.feature_start_level >= 0:  # within the fine levels' basin already
             levels = [(lvl, it) for lvl, it in levels if lvl <= cfg.feature_start_level]
         align = self._align_dedicated if self.solver == "dedicated" else self._align_generic
-        state, cost, valid_px, r, sigma, gray_A, iterations = align(keyframe, code, image, camera, valid, state,
-                                                                    layout, terms, levels)
+        state, cost, valid_px, r, sigma, gray_A, iterations, kp = align(keyframe, code, image, camera, valid, state,
+                                                                        layout, terms, levels)
         result = self._checked(state, valid_px, r, sigma, gray_A, cost, iterations)
         if reprojection is not None and len(reprojection) > 0:  # not the motion prior alone (a frame without matches)
             result.feature_matches = len(reprojection)
-            result.feature_inliers = int(reprojection.inliers(state, feature_threshold).sum())
+            if kp is None:
+                inliers = reprojection.inliers(state, feature_threshold)
+            else:  # the alignment's own reprojection residuals at the final pose: the same test
+                r_kp, x_kp = kp
+                inliers = (torch.hypot(r_kp[0], r_kp[1]) <= feature_threshold) & (x_kp[2] > MIN_KEYPOINT_DEPTH)
+            result.feature_inliers = int(inliers.sum())
             finite = "non-finite" not in result.reason
             if not result.ok and finite and min_feature_inliers > 0 and result.feature_inliers >= min_feature_inliers:
                 result.ok, result.reason = True, ""  # the features vouch for the pose (see TrackResult)
@@ -189,7 +195,8 @@ class PhotometricTracker:
                          levels: list[tuple[int, int]]):
         """Coarse to fine over :class:`~codeslam.slam.alignment.TrackingProblem` with the keyframe's cached data,
         ``levels`` (level, iterations) in order.
-        Returns (state, cost, valid (N,), r (N,), sigma, gray_A (N,), iterations) at the finest level."""
+        Returns (state, cost, valid (N,), r (N,), sigma, gray_A (N,), iterations) at the finest level and the matched
+        keypoints' residuals (2, M) and points in the frame (3, M) at the final pose (None without keypoints)."""
         cfg, sfm_cfg = self.cfg, self.sfm_cfg
         reference = self.reference(keyframe, code)
         visited = [lvl for lvl, _ in levels]
@@ -208,8 +215,9 @@ class PhotometricTracker:
             current, report = levenberg_marquardt(problem, current, layout, sfm_cfg, iters)
             iterations += report.iterations
         cost, ev = problem.evaluation(current)  # the finest level at the final state (the solver evaluated it)
+        kp = None if ev.keypoints is None else ev.keypoints[1:3]
         return (current.to_sfm(), cost, ev.valid, ev.r, ev.sigma, reference.levels[cfg.pyramid_levels[-1]].gray,
-                iterations)
+                iterations, kp)
 
     def _real_pixel_pyramid(self, valid: torch.Tensor, levels: list[int], dtype: torch.dtype,
                             device: torch.device) -> dict[int, torch.Tensor]:
@@ -231,7 +239,7 @@ class PhotometricTracker:
                        levels: list[tuple[int, int]]):
         """The same alignment as a two-frame :class:`~codeslam.sfm.solver.PairProblem` (A = keyframe with its
         depth decoded at ``code``, B = the frame), its levels rebuilt for every frame; same returns as
-        :meth:`_align_dedicated`."""
+        :meth:`_align_dedicated`, without the keypoints' residuals (None)."""
         cfg, sfm_cfg = self.cfg, self.sfm_cfg
         dtype, device = state.poses.dtype, state.poses.device
         fixed_depth = Keyframe(keyframe.image, keyframe.camera, fixed_depth_decoder(keyframe.decoder, code),
@@ -246,7 +254,8 @@ class PhotometricTracker:
             iterations += report.iterations
         finest = pyramid[cfg.pyramid_levels[-1]]
         cost, ev = PairProblem(finest, pairs, sfm_cfg, terms).evaluate(state)
-        return state, cost, ev.valid[0, 0], ev.r[0, 0], ev.sigma[0, 0], finest.gray[0, 0].reshape(-1), iterations
+        return (state, cost, ev.valid[0, 0], ev.r[0, 0], ev.sigma[0, 0], finest.gray[0, 0].reshape(-1), iterations,
+                None)
 
     def _motion_prior(self, T_kf_prior: torch.Tensor, dt: float, dtype: torch.dtype,
                       device: torch.device) -> PosePrior:
