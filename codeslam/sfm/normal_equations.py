@@ -87,12 +87,15 @@ def add_local_blocks(
                 c[i0:i1] = range(sl.start, sl.stop)
         cols.append(c)
     idx = torch.tensor(cols, device=H.device)  # (P, Dl)
-    H_ext = H.new_zeros(trash + 1, trash + 1)
-    g_ext = g.new_zeros(trash + 1)
-    H_ext.index_put_((idx[:, :, None].expand(P, Dl, Dl), idx[:, None, :].expand(P, Dl, Dl)), H_local.to(H.dtype),
-                     accumulate=True)
-    g_ext.index_put_((idx,), g_local.to(g.dtype), accumulate=True)
-    H += H_ext[:trash, :trash]
+    # index_add_ rather than index_put_(accumulate=True): on the CPU with more than one thread the latter adds the
+    # duplicates (a pose shared by several pairs) in an order that changes from run to run, and the window's
+    # solves, hence the whole trajectory, differed between two runs of the same sequence (2 threads).
+    n = trash + 1
+    H_ext = H.new_zeros(n * n)
+    g_ext = g.new_zeros(n)
+    H_ext.index_add_(0, (idx[:, :, None] * n + idx[:, None, :]).reshape(-1), H_local.to(H.dtype).reshape(-1))
+    g_ext.index_add_(0, idx.reshape(-1), g_local.to(g.dtype).reshape(-1))
+    H += H_ext.view(n, n)[:trash, :trash]
     g += g_ext[:trash]
 
 

@@ -11,7 +11,7 @@ from codeslam.geometry.lie import se3_exp
 from codeslam.sfm.autodiff import autodiff_normal_equations, retract_differentiable
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import build_levels
-from codeslam.sfm.normal_equations import assemble, dense_jacobian
+from codeslam.sfm.normal_equations import _local_blocks, add_local_blocks, assemble, dense_jacobian
 from codeslam.sfm.residuals import evaluate_pairs, pair_jacobians
 from codeslam.sfm.variables import AFFINE, CODE, POSE, RS, BlockId, LinearPrior, SfMState, VariableLayout
 
@@ -143,3 +143,41 @@ def test_linear_prior_gradient_and_hessian_match_autograd(problem):
     torch.testing.assert_close(gv[code_sl], grad[code_sl])
     pose_sl = layout.slice(BlockId(POSE, 1))
     assert (gv[pose_sl] - grad[pose_sl]).norm() < 0.1 * grad[pose_sl].norm()
+
+
+def test_the_window_sized_local_blocks_add_up_the_same_on_every_call():
+    """A window's 12 pairs with 64-dimensional codes, added on two threads: the same bits every time, and the sums
+    of a float64 reference. (index_put_ with accumulate=True gave a different H on almost every call here: the
+    same sequence ended at different trajectories from run to run with --threads 2.)"""
+    F, C, K = 4, 64, 14
+    pairs = [(a, b) for a in range(F) for b in range(F) if a != b]
+    layout = VariableLayout.for_sfm(F, C, len(pairs), True, [BlockId(POSE, 0)])
+    blocks = [_local_blocks(a, b, p, False) + [(BlockId(CODE, a), K, K + C), (BlockId(CODE, b), K + C, K + 2 * C)]
+              for p, (a, b) in enumerate(pairs)]
+    g = torch.Generator().manual_seed(5)
+    H_local = torch.randn(len(pairs), K + 2 * C, K + 2 * C, generator=g)
+    g_local = torch.randn(len(pairs), K + 2 * C, generator=g)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        results = []
+        for _ in range(20):
+            H, gv = torch.zeros(layout.dim, layout.dim), torch.zeros(layout.dim)
+            add_local_blocks(H, gv, layout, blocks, H_local, g_local)
+            results.append((H.numpy().tobytes(), gv.numpy().tobytes()))
+    finally:
+        torch.set_num_threads(threads)
+    assert len(set(results)) == 1
+    H_ref, g_ref = torch.zeros(layout.dim, layout.dim, dtype=D), torch.zeros(layout.dim, dtype=D)
+    for p, pair_blocks in enumerate(blocks):
+        for bi, i0, i1 in pair_blocks:
+            si = layout.slice(bi)
+            if si is None:
+                continue
+            g_ref[si] += g_local[p, i0:i1].double()
+            for bj, j0, j1 in pair_blocks:
+                sj = layout.slice(bj)
+                if sj is not None:
+                    H_ref[si, sj] += H_local[p, i0:i1, j0:j1].double()
+    torch.testing.assert_close(H.double(), H_ref, atol=1e-4, rtol=1e-5)
+    torch.testing.assert_close(gv.double(), g_ref, atol=1e-5, rtol=1e-5)
