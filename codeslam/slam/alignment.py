@@ -325,6 +325,12 @@ class KeypointTerm:
         w = torch.where(front, irls * self._irls_scale, torch.zeros_like(irls))
         return self.weight * cost.sum(), r, x, w
 
+    @staticmethod
+    def inliers(r: torch.Tensor, x: torch.Tensor, threshold_px: float) -> torch.Tensor:
+        """r (2, M), x (3, M) of :meth:`evaluate` -> (M,) bool: within ``threshold_px`` and in front of B, the test of
+        :meth:`~codeslam.slam.reprojection.ReprojectionTerm.inliers` in this layout."""
+        return (torch.hypot(r[0], r[1]) <= threshold_px) & (x[2] > MIN_KEYPOINT_DEPTH)
+
     def jacobian(self, x: torch.Tensor) -> torch.Tensor:
         """x (3, M) the points in B -> (6, 2, M) ``d r / d xi_BA`` (left increment of T_BA): each residual row a
         (a row of d pi / d x) gives ``[a, x x a]`` (Eqs. 7-8, as :func:`~codeslam.sfm.warp.pose_row`)."""
@@ -420,8 +426,10 @@ class TrackingProblem:
                  terms: Sequence = ()) -> None:
         self.ref, self.frame, self.cfg, self.keypoints = ref, frame, cfg, keypoints
         # Priors on the frame's pose (the motion model) read the pose itself; other terms the generic state.
-        self.pose_priors = [t for t in terms if type(t) is PosePrior and t.block.index == 1]
-        self.terms = [t for t in terms if not (type(t) is PosePrior and t.block.index == 1)]
+        self.pose_priors: list[PosePrior] = []
+        self.terms: list = []
+        for t in terms:
+            (self.pose_priors if type(t) is PosePrior and t.block.index == 1 else self.terms).append(t)
         # The affine prior's constants, made once instead of at every evaluation and linearisation.
         sigma = torch.as_tensor(cfg.affine_prior_sigma, dtype=ref.gray.dtype, device=ref.gray.device)
         self._affine_sigma = sigma

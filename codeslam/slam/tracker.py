@@ -20,7 +20,6 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from codeslam.constants import MIN_KEYPOINT_DEPTH
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
@@ -181,9 +180,8 @@ class PhotometricTracker:
             result.feature_matches = len(reprojection)
             if kp is None:
                 inliers = reprojection.inliers(state, feature_threshold)
-            else:  # the alignment's own reprojection residuals at the final pose: the same test
-                r_kp, x_kp = kp
-                inliers = (torch.hypot(r_kp[0], r_kp[1]) <= feature_threshold) & (x_kp[2] > MIN_KEYPOINT_DEPTH)
+            else:  # the alignment's own reprojection residuals at the final pose
+                inliers = KeypointTerm.inliers(*kp, feature_threshold)
             result.feature_inliers = int(inliers.sum())
             finite = "non-finite" not in result.reason
             if not result.ok and finite and min_feature_inliers > 0 and result.feature_inliers >= min_feature_inliers:

@@ -115,6 +115,21 @@ def test_keypoint_jacobian_matches_autograd_float64():
     torch.testing.assert_close(J.permute(1, 2, 0), J_auto, atol=1e-9, rtol=1e-7)
 
 
+def test_keypoint_inliers_are_the_reprojection_terms_own():
+    frames, _, _, _ = _scene(D)
+    term = _keypoints(frames, 2, noise=3.0, seed=1)
+    kp = KeypointTerm(term, D, torch.device("cpu"))
+    T_kf = se3_exp(torch.tensor([0.01, -0.005, 0.0, 0.002, 0.0, -0.003], dtype=D)) @ (
+        se3_inverse(frames[0].pose) @ frames[2].pose)
+    state = TrackingState(T_kf, torch.zeros(2, dtype=D))
+    R_BA, t_BA = _relative(T_kf)
+    _, r, x, _ = kp.evaluate(R_BA, t_BA)
+    for threshold in (1.0, 3.0, 6.0):
+        ours = KeypointTerm.inliers(r, x, threshold)
+        assert 0 < int(ours.sum()) < len(term)  # the threshold splits the matches
+        assert torch.equal(ours, term.inliers(state.to_sfm(), threshold))
+
+
 @pytest.mark.parametrize("with_keypoints", [False, True])
 def test_normal_equations_are_the_dense_irls_system_and_the_cost_gradient(with_keypoints):
     problem, state = _level_problem(with_keypoints=with_keypoints)
