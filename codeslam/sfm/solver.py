@@ -16,8 +16,9 @@ from __future__ import annotations
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 
@@ -26,9 +27,10 @@ from codeslam.errors import CodeSLAMError
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, LevelData, build_levels
 from codeslam.sfm.normal_equations import assemble
+from codeslam.sfm.priors import AffinePrior, CodePrior, ReadoutPrior
 from codeslam.sfm.residuals import PairEvaluation, evaluate_pairs, pair_jacobians, robust_weights
 from codeslam.sfm.scale_prior import DepthScalePrior
-from codeslam.sfm.variables import AFFINE, CODE, RS, RS_DIM, BlockId, LinearPrior, SfMState, VariableLayout
+from codeslam.sfm.variables import CODE, RS_DIM, BlockId, LinearPrior, SfMState, VariableLayout
 
 
 def _sync(device: torch.device) -> None:
@@ -50,15 +52,19 @@ class PairProblem:
             raise CodeSLAMError("a frame pair must join two different frames")
         self.level, self.pairs, self.cfg, self.priors = level, pairs, cfg, list(priors)
         self.pair_b = sorted({int(b) for b in pairs[:, 1].tolist()})
+        # The cost's own priors, then the extra terms (:mod:`codeslam.sfm.priors`). The state has readout
+        # rotations only with cfg.rolling_shutter (see sfm).
+        self.fixed_priors = [CodePrior(cfg.code_prior_weight)]  # VAE prior N(0, I) (Sec. 2.1)
+        if cfg.affine_brightness:
+            self.fixed_priors.append(AffinePrior(cfg.affine_prior_sigma))
+        if cfg.rolling_shutter:
+            self.fixed_priors.append(ReadoutPrior(cfg.rolling_shutter_sigma))
 
     def _prior_cost(self, state: SfMState) -> torch.Tensor:
-        cfg = self.cfg
-        cost = 0.5 * cfg.code_prior_weight * state.codes.square().sum()  # VAE prior N(0, I) (Sec. 2.1)
-        if cfg.affine_brightness:
-            sig = state.affine.new_tensor(cfg.affine_prior_sigma)
-            cost = cost + 0.5 * (state.affine / sig).square().sum()
-        if state.rs is not None:  # the state has readout rotations only with cfg.rolling_shutter (see sfm)
-            cost = cost + 0.5 * (state.rs / cfg.rolling_shutter_sigma).square().sum()
+        code, *others = self.fixed_priors
+        cost = code.cost(state)
+        for prior in others:
+            cost = cost + prior.cost(state)
         for prior in self.priors:
             cost = cost + prior.cost(state).to(cost.dtype)
         return cost
@@ -72,23 +78,10 @@ class PairProblem:
     def linearize(
         self, state: SfMState, cache: PairEvaluation, layout: VariableLayout, profile: dict | None = None
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        cfg = self.cfg
         code_b_free = any(BlockId(CODE, b) in layout for b in self.pair_b)
         terms = pair_jacobians(self.level, self.pairs, cache, with_code_b=code_b_free)
         H, g = assemble(terms, self.pairs, state.poses, self.level, layout, profile)
-        for b, sl in layout.slices():
-            if b.kind == CODE:  # VAE prior: 0.5 w |c|^2
-                H[sl, sl] += cfg.code_prior_weight * torch.eye(sl.stop - sl.start, dtype=H.dtype, device=H.device)
-                g[sl] += cfg.code_prior_weight * state.codes[b.index].to(g.dtype)
-            elif b.kind == AFFINE:
-                inv_var = 1.0 / H.new_tensor(cfg.affine_prior_sigma) ** 2
-                H[sl, sl] += torch.diag(inv_var)
-                g[sl] += inv_var * state.affine[b.index].to(g.dtype)
-            elif b.kind == RS:
-                inv_var = 1.0 / cfg.rolling_shutter_sigma**2
-                H[sl, sl] += inv_var * torch.eye(RS_DIM, dtype=H.dtype, device=H.device)
-                g[sl] += inv_var * state.rs[b.index].to(g.dtype)
-        for prior in self.priors:
+        for prior in (*self.fixed_priors, *self.priors):
             prior.add_to(H, g, layout, state)
         return H, g
 
@@ -198,6 +191,29 @@ def levenberg_marquardt(
     return state, report
 
 
+def coarse_to_fine(
+    problem_at: Callable[[int], Any], state, layout: VariableLayout, cfg: SfMConfig,
+    levels: Iterable[tuple[int, int]], profile: dict | None = None, interrupted: Callable[[], bool] | None = None,
+) -> tuple[Any, list[tuple[int, LMReport]], Any]:
+    """Levenberg-Marquardt at each pyramid level in ``levels`` ((level, iterations), coarse to fine), each level
+    starting from the one before (paper Sec. 4.1 and 4.2: the coarse levels widen the basin, the fine ones
+    sharpen the estimate). ``problem_at(level)`` builds that level's problem (any problem
+    :func:`levenberg_marquardt` drives); the N-frame SfM, the window and the tracker all run this one loop.
+    Stops early when a level was interrupted (see :func:`levenberg_marquardt`).
+
+    Returns the final state, one (level, :class:`LMReport`) per visited level, and the last level's problem (None
+    when ``levels`` is empty)."""
+    reports: list[tuple[int, LMReport]] = []
+    problem = None
+    for lvl, iters in levels:
+        problem = problem_at(lvl)
+        state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, profile, interrupted)
+        reports.append((lvl, rep))
+        if rep.reason == "interrupted":
+            break
+    return state, reports, problem
+
+
 @dataclass
 class SfMResult:
     """Result of :func:`sfm`. poses (F, 4, 4) T_wc; codes (F, C); affine (P, 2) (log-gain, bias) per pair;
@@ -270,16 +286,17 @@ def sfm(
     no_depth = [BlockId(CODE, i) for i, kf in enumerate(keyframes) if kf.decoder is None]  # codes with no effect
     layout = VariableLayout.for_sfm(F_, C, pair_t.shape[0], cfg.affine_brightness, [*fixed, *no_depth],
                                     rolling_shutter=cfg.rolling_shutter)
-    reports = []
     t0 = time.perf_counter()
     with_depth = [i for i, kf in enumerate(keyframes) if kf.decoder is not None]
-    for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
+
+    def problem_at(lvl: int) -> PairProblem:
         terms = list(priors)
         if cfg.depth_scale_sigma > 0 and with_depth:  # each frame's scale near the network's prediction
             terms.append(DepthScalePrior(levels[lvl], with_depth, cfg.depth_scale_sigma))
-        problem = PairProblem(levels[lvl], pair_t, cfg, terms)
-        state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, profile)
-        reports.append((lvl, rep))
+        return PairProblem(levels[lvl], pair_t, cfg, terms)
+
+    state, reports, _ = coarse_to_fine(problem_at, state, layout, cfg, zip(cfg.pyramid_levels, cfg.max_iterations),
+                                       profile)
     _sync(device)
     total_ms = 1e3 * (time.perf_counter() - t0)
     n_it = sum(r.iterations for _, r in reports)

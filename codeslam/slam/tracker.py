@@ -23,7 +23,7 @@ import torch
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
-from codeslam.sfm.solver import PairProblem, levenberg_marquardt
+from codeslam.sfm.solver import PairProblem, coarse_to_fine
 from codeslam.sfm.variables import AFFINE_DIM, CODE, POSE, BlockId, SfMState, VariableLayout
 from codeslam.slam.alignment import (
     FramePyramid,
@@ -207,11 +207,10 @@ class PhotometricTracker:
                 keypoints = KeypointTerm(term, reference.dtype, reference.device)
             else:
                 others.append(term)
-        iterations = 0
-        for lvl, iters in levels:  # coarse to fine (Sec. 4.2)
-            problem = TrackingProblem(reference.levels[lvl], frame.levels[lvl], sfm_cfg, keypoints, others)
-            current, report = levenberg_marquardt(problem, current, layout, sfm_cfg, iters)
-            iterations += report.iterations
+        current, reports, problem = coarse_to_fine(  # Sec. 4.2
+            lambda lvl: TrackingProblem(reference.levels[lvl], frame.levels[lvl], sfm_cfg, keypoints, others),
+            current, layout, sfm_cfg, levels)
+        iterations = sum(r.iterations for _, r in reports)
         cost, ev = problem.evaluation(current)  # the finest level at the final state (the solver evaluated it)
         kp = None if ev.keypoints is None else ev.keypoints[1:3]
         return (current.to_sfm(), cost, ev.valid, ev.r, ev.sigma, reference.levels[cfg.pyramid_levels[-1]].gray,
@@ -245,11 +244,9 @@ class PhotometricTracker:
         frame = Keyframe(image.to(dtype=dtype, device=device), camera, None, valid)  # no depth: B of the pair only
         pyramid = build_levels([fixed_depth, frame], cfg.pyramid_levels, dtype, device)
         pairs = torch.tensor([[0, 1]], device=device)  # A = keyframe (decoded depth), B = frame
-        iterations = 0
-        for lvl, iters in levels:  # coarse to fine (Sec. 4.2)
-            problem = PairProblem(pyramid[lvl], pairs, sfm_cfg, terms)
-            state, report = levenberg_marquardt(problem, state, layout, sfm_cfg, iters)
-            iterations += report.iterations
+        state, reports, _ = coarse_to_fine(lambda lvl: PairProblem(pyramid[lvl], pairs, sfm_cfg, terms), state,
+                                           layout, sfm_cfg, levels)  # Sec. 4.2
+        iterations = sum(r.iterations for _, r in reports)
         finest = pyramid[cfg.pyramid_levels[-1]]
         cost, ev = PairProblem(finest, pairs, sfm_cfg, terms).evaluate(state)
         return (state, cost, ev.valid[0, 0], ev.r[0, 0], ev.sigma[0, 0], finest.gray[0, 0].reshape(-1), iterations,

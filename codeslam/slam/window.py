@@ -37,9 +37,10 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.normal_equations import assemble
 from codeslam.sfm.pairs import view_overlap
+from codeslam.sfm.priors import AffinePrior, CodePrior
 from codeslam.sfm.residuals import evaluate_pairs, pair_jacobians
 from codeslam.sfm.scale_prior import DepthScalePrior
-from codeslam.sfm.solver import LMReport, PairProblem, levenberg_marquardt
+from codeslam.sfm.solver import LMReport, PairProblem, coarse_to_fine
 from codeslam.sfm.variables import (
     AFFINE,
     AFFINE_DIM,
@@ -329,19 +330,20 @@ class SlidingWindow:
         if self.cfg.motion_prior_acceleration > 0:  # consecutive keyframes' velocities: level-independent too
             sparse_terms.append(VelocityPrior.consecutive([k.timestamp for k in self.keyframes],
                                                           self.cfg.motion_prior_acceleration))
-        for lvl, iters in zip(cfg.pyramid_levels, cfg.max_iterations):
+
+        def problem_at(lvl: int) -> PairProblem:
             # Coarser levels sum over fewer pixels: scale the prior alike so it keeps its weight against the data.
             scale = levels[lvl].uv.shape[0] / n_prior if self.cfg.scale_prior_with_level else 1.0
             prior = self._positioned_prior(scale)
             terms = ([] if prior is None else [prior]) + sparse_terms
             if self.cfg.depth_scale_sigma > 0:  # each keyframe's scale near the network's prediction
                 terms.append(DepthScalePrior(levels[lvl], list(range(F_)), self.cfg.depth_scale_sigma))
-            problem = PairProblem(levels[lvl], pairs, cfg, terms)
-            state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, interrupted=interrupted)
-            report.levels.append((lvl, rep))
-            if rep.reason == "interrupted":
-                report.interrupted = True
-                break
+            return PairProblem(levels[lvl], pairs, cfg, terms)
+
+        state, report.levels, _ = coarse_to_fine(problem_at, state, layout, cfg,
+                                                 zip(cfg.pyramid_levels, cfg.max_iterations),
+                                                 interrupted=interrupted)
+        report.interrupted = bool(report.levels) and report.levels[-1][1].reason == "interrupted"
         for i, kf in enumerate(self.keyframes):
             kf.T_wc = project_to_se3(state.poses[i])
             kf.code = state.codes[i].detach().clone()
@@ -445,14 +447,9 @@ class SlidingWindow:
             lvl = self.prior_level
             level = build_levels([k.keyframe for k in kfs[:1]], [lvl], dtype, device)[lvl]
             DepthScalePrior(level, [0], self.cfg.depth_scale_sigma).add_to(H, g, layout, state)
-        sl = layout.slice(BlockId(CODE, 0))  # the leaving keyframe's code prior 0.5 w |c|^2 (VAE prior)
-        H[sl, sl] += cfg.code_prior_weight * torch.eye(C, dtype=torch.float64, device=device)
-        g[sl] += cfg.code_prior_weight * state.codes[0].to(torch.float64)
-        for b, s in layout.slices():
-            if b.kind == AFFINE:  # the affine prior of the leaving pairs
-                inv_var = 1.0 / torch.tensor(cfg.affine_prior_sigma, dtype=torch.float64, device=device) ** 2
-                H[s, s] += torch.diag(inv_var)
-                g[s] += inv_var * state.affine[b.index].to(torch.float64)
+        CodePrior(cfg.code_prior_weight, [0]).add_to(H, g, layout, state)  # the leaving keyframe's (VAE prior)
+        if cfg.affine_brightness:  # the leaving pairs' affine prior
+            AffinePrior(cfg.affine_prior_sigma).add_to(H, g, layout, state)
         old_prior = self._positioned_prior(dtype=torch.float64)
         if old_prior is not None:  # the previous prior involves the leaving keyframe: it is marginalised too
             old_prior.add_to(H, g, layout, state)
