@@ -98,9 +98,17 @@ def test_rolling_shutter_model_recovers_poses_and_depth_that_a_global_shutter_wa
     omega = torch.tensor([[0.0, 0.04, 0.0], [0.03, -0.03, 0.01], [-0.02, 0.05, 0.0], [0.0, 0.0, 0.0]], dtype=D)
     kfs, codes, gt = make_frames(GT_POSES, panel=False, seed=3, code_size=8, readout=omega)
     rmse0, _ = _scaled_prox_rmse(kfs[0].decoder, torch.zeros(8, dtype=D), codes[0])
+    # Not exactly at the identity: there every pixel warps onto its own centre, so the image-border tests of the
+    # coarsest level sit on ties that the last bit of a product decides (Intel MKL's AVX-512 path against its
+    # AVX2 one flipped 2 of 576 pixels, and this start's solve ended 4.5 degrees off on one and 0.05 on the
+    # other). 1e-7 from the identity both agree, and the rolling-shutter solve converged from all six such
+    # starts tried (0.09-0.10 degrees; the global-shutter one 4.9-5.9).
+    g = torch.Generator().manual_seed(0)
+    init = torch.stack([torch.eye(4, dtype=D)] + [se3_exp(1e-7 * torch.randn(6, generator=g, dtype=D))
+                                                  for _ in range(3)])
     errors = {}
     for rs in (False, True):
-        res = sfm(kfs, master_pairs(4, 0), SfMConfig(rolling_shutter=rs))
+        res = sfm(kfs, master_pairs(4, 0), SfMConfig(rolling_shutter=rs), poses_init=init)
         rmse, s = _scaled_prox_rmse(kfs[0].decoder, res.codes[0], codes[0])
         rot = max(_pose_error(res.poses[i], gt[i])[1] for i in range(1, 4))
         trans = max(_pose_error(res.poses[i], gt[i])[0] for i in range(1, 4))
@@ -196,8 +204,14 @@ def test_float32_problem_converges_like_float64():
     res = sfm(kfs32, [(0, 1), (1, 0)], SfMConfig(), poses_init=init.float(), codes_init=codes.float(),
               fixed=_all_codes_fixed(2))
     assert res.poses.dtype == torch.float32
+    res64 = sfm(kfs, [(0, 1), (1, 0)], SfMConfig(), poses_init=init, codes_init=codes, fixed=_all_codes_fixed(2))
+    # The start is 67 mm and 1.7 degrees off. float64 stops 4.1 mm and 0.055 degrees from the truth (the cost's
+    # relative tolerance); float32 ended within 1 um of it with Intel MKL's AVX-512 path and 2.5 mm from the
+    # truth (5.4 mm from float64) with its AVX2 one, two iterations earlier: both as converged as float64 is.
+    t64, r64 = _pose_error(res64.poses[1], gt[1])
     t_err, r_err = _pose_error(res.poses[1].double(), gt[1])
-    assert t_err < 0.003 and r_err < 0.1, (t_err, r_err)
+    assert t64 < 0.005 and r64 < 0.1, (t64, r64)
+    assert t_err < 1.5 * t64 and r_err < 1.5 * r64, (t_err, r_err, t64, r64)
 
 
 class _Drift:
