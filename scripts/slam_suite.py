@@ -1,0 +1,176 @@
+"""Every sequence the SLAM issues are judged on, run with the same settings and read as one table (issues 11-13).
+
+A change that helps one sequence and hurts another is not progress, so a change to tracking or mapping is read on
+all of them at once: the two shared real sequences (the HoloLens walk at every frame and at every second frame, TUM
+fr1/rpy), the generator's motion presets (walk, hand-held, corridor, two fast turns) and five generator sequences
+that no setting was chosen on (seeds 41-45), with the network's depth, and three of them again with the dataset's
+own depth (``--depth-model standin``), which separates the tracker from the network.
+
+The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 25 minutes on one
+core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DATA --out OUT/NAME -q`` plus the
+``--`` arguments (``--threads 1`` by default, which makes the runs repeat to the byte and lets two share two
+cores). The table reads each run's ``result.json``:
+
+    python scripts/slam_suite.py OUT [--seqs DIR] [--jobs 2] [--only NAME ...] [-- --threads 1 --config C.yaml]
+    python scripts/slam_suite.py --table OUT [OUT2 ...]   # the table again; several folders side by side
+
+Frames per second are comparable only between runs that ran alone, or in pairs in the same run of this script.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """A generator sequence: the ``codeslam synth`` arguments that render it (one scene, 320x240)."""
+
+    name: str
+    frames: int
+    motion: str
+    fps: int
+    seed: int
+    extra: tuple[str, ...] = ()
+
+    def render(self, seqs: Path) -> Path:
+        out = seqs / self.name
+        scene = out / "scene_000"
+        if not (scene / "groundtruth.txt").exists():
+            cmd = ["codeslam", "synth", str(out), "--scenes", "1", "--frames", str(self.frames), "--motion",
+                   self.motion, "--fps", str(self.fps), "--seed", str(self.seed), "--size", "320x240", *self.extra]
+            print("rendering:", " ".join(cmd), flush=True)
+            subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+        return scene
+
+
+SEQUENCES = {s.name: s for s in (
+    Sequence("walk10", 100, "walk", 10, 11),
+    Sequence("handheld30", 120, "handheld", 30, 12),
+    Sequence("fastturn30", 120, "fast-turn", 30, 13),
+    Sequence("ft30_s14", 120, "fast-turn", 30, 14),
+    Sequence("corr10", 100, "corridor", 10, 21),
+    # seeds 41-45: never used to choose a setting
+    Sequence("hh41", 600, "handheld", 30, 41, ("--noise", "0.01", "--blur", "0.5")),
+    Sequence("walk42", 150, "walk", 10, 42),
+    Sequence("walk43", 150, "walk", 10, 43, ("--noise", "0.01")),
+    Sequence("corr44", 150, "corridor", 10, 44),
+    Sequence("ft45", 150, "fast-turn", 30, 45),
+)}
+
+# (run name, dataset: a folder under ../shared/data or a generator sequence's name, extra codeslam slam arguments)
+RUNS = (
+    ("holo", "hololens_dvmvs", ()),
+    ("holo_every2", "hololens_dvmvs", ("--frames", "0:188:2")),
+    ("tum", "tum_fr1_rpy", ()),
+    ("walk", "walk10", ()),
+    ("hand", "handheld30", ()),
+    ("corr", "corr10", ()),
+    ("ft13", "fastturn30", ()),
+    ("ft14", "ft30_s14", ()),
+    ("hh41", "hh41", ()),
+    ("walk42", "walk42", ()),
+    ("walk43", "walk43", ()),
+    ("corr44", "corr44", ()),
+    ("ft45", "ft45", ()),
+    ("holo_standin", "hololens_dvmvs", ("--depth-model", "standin")),
+    ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
+    ("walk_standin", "walk10", ("--depth-model", "standin")),
+)
+
+
+def dataset_path(name: str, seqs: Path) -> Path:
+    if name in SEQUENCES:
+        return SEQUENCES[name].render(seqs)
+    return SHARED / name
+
+
+def run_one(name: str, data: Path, extra: tuple[str, ...], out: Path, passthrough: list[str]) -> str:
+    folder = out / name
+    cmd = ["codeslam", "slam", str(data), "--out", str(folder), "-q", *extra, *passthrough]
+    start = time.perf_counter()
+    with open(out / f"{name}.log", "w") as log:
+        rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode
+    return f"{name}: rc {rc}, {time.perf_counter() - start:.0f} s"
+
+
+def row(folder: Path) -> list[str]:
+    """One run's cells: failed, ATE Sim(3) (never moving), % of the path, rotation, RPE, scale, frames/s."""
+    f = folder / "result.json"
+    if not f.exists():
+        return ["(no result)"] + [""] * 6
+    s = json.loads(f.read_text())
+    if "ate_sim3_rmse" not in s:
+        return [f"{s['tracking_failures']}/{s['frames']}", "(no ground truth)"] + [""] * 5
+    path = s.get("path_length_gt") or float("nan")
+    return [
+        f"{s['tracking_failures']}/{s['frames']}",
+        f"{s['ate_sim3_rmse']:.4f} ({s['no_motion_ate_rmse_aligned']:.3f})",
+        f"{100 * s['ate_sim3_rmse'] / path:.2f}%",
+        f"{s['rot_aligned_rmse_deg']:.2f}",
+        f"{1000 * s['rpe_trans_sim3_rmse']:.1f}",
+        f"{s['sim3_scale']:.2f}",
+        f"{s['fps']:.2f}",
+    ]
+
+
+def table(outs: list[Path]) -> str:
+    head = ["failed", "ATE Sim(3) m (never moving)", "of path", "rotation °", "RPE mm", "scale", "frames/s"]
+    if len(outs) == 1:
+        lines = ["| run | " + " | ".join(head) + " |", "|---" * (len(head) + 1) + "|"]
+        lines += [f"| {name} | " + " | ".join(row(outs[0] / name)) + " |" for name, _, _ in RUNS]
+        return "\n".join(lines)
+    # side by side: failed, ATE, rotation per folder
+    cols = [f"{o.name}: {c}" for o in outs for c in ("failed", "ATE Sim(3) m", "rotation °")]
+    lines = ["| run | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for name, _, _ in RUNS:
+        cells = []
+        for o in outs:
+            r = row(o / name)
+            cells += [r[0], r[1].split(" ")[0], r[3]]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    argv = sys.argv[1:]
+    passthrough = ["--threads", "1"]
+    if "--" in argv:
+        i = argv.index("--")
+        argv, passthrough = argv[:i], argv[i + 1:]
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("out", type=Path, nargs="+", help="Output folder (with --table: one or more to compare).")
+    ap.add_argument("--seqs", type=Path, default=Path(os.environ.get("CODESLAM_SEQS", "suite_seqs")),
+                    help="Where the generator sequences are rendered (default suite_seqs or $CODESLAM_SEQS).")
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--only", nargs="+", default=None, help="Run only these (names as in the table).")
+    ap.add_argument("--table", action="store_true", help="Only print the table of existing run folders.")
+    args = ap.parse_args(argv)
+    if args.table:
+        print(table(args.out))
+        return
+    out = args.out[0]
+    out.mkdir(parents=True, exist_ok=True)
+    runs = [r for r in RUNS if args.only is None or r[0] in args.only]
+    datasets = {name: dataset_path(data, args.seqs) for name, data, _ in runs}  # render before timing anything
+    (out / "suite.json").write_text(json.dumps({"passthrough": passthrough, "runs": [r[0] for r in runs]}))
+    # the longest first, so that two jobs end together
+    order = sorted(runs, key=lambda r: r[1] in ("hololens_dvmvs", "hh41"), reverse=True)
+    with ThreadPoolExecutor(args.jobs) as pool:
+        for msg in pool.map(lambda r: run_one(r[0], datasets[r[0]], r[2], out, passthrough), order):
+            print(msg, flush=True)
+    print(table([out]))
+
+
+if __name__ == "__main__":
+    main()
