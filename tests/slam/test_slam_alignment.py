@@ -308,7 +308,7 @@ def test_the_keyframe_reference_is_kept_until_its_code_changes():
 def test_a_start_from_the_matches_skips_the_coarse_levels_and_ends_where_all_levels_do(monkeypatch):
     """``tracker.feature_start_level``: with a start pose vouched for by enough matches the alignment begins at that
     level; a frame started by the motion model alone still visits every level. Both end at the same pose."""
-    import codeslam.slam.tracker as tracker_module
+    import codeslam.sfm.solver as solver_module  # the coarse-to-fine loop calls its levenberg_marquardt
 
     frames, trackers, kf, code = _scene(torch.float32)
     cfg, sfm_cfg = trackers["dedicated"].cfg, trackers["dedicated"].sfm_cfg
@@ -318,13 +318,13 @@ def test_a_start_from_the_matches_skips_the_coarse_levels_and_ends_where_all_lev
     base = PhotometricTracker(replace(cfg, feature_start_level=-1), sfm_cfg)
     skipping = PhotometricTracker(replace(cfg, feature_start_level=start), sfm_cfg)
     visited = []
-    lm = tracker_module.levenberg_marquardt
+    lm = solver_module.levenberg_marquardt
 
     def recording(problem, *args, **kwargs):
         visited.append(problem.ref.gray.numel())  # the level's pixel count tells the level
         return lm(problem, *args, **kwargs)
 
-    monkeypatch.setattr(tracker_module, "levenberg_marquardt", recording)
+    monkeypatch.setattr(solver_module, "levenberg_marquardt", recording)
     depth = float(frames[0].depth.median())
     for j in (2, 4):
         term = _keypoints(frames, j, torch.float32)
