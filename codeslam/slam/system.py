@@ -45,6 +45,7 @@ from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.lie import se3_inverse, so3_log
+from codeslam.geometry.resample import resample_depth
 from codeslam.geometry.rolling_shutter import rectify_image, rectify_points, source_pixels
 from codeslam.sfm.decoder import LinearDecoder
 from codeslam.sfm.keyframes import Keyframe
@@ -132,10 +133,11 @@ class _FrameRecord:
 class _Views:
     """One input frame as the system uses it: in the network's camera, and its keypoints in the feature camera."""
 
-    frame: Frame
+    frame: Frame  # without depth: only a keyframe needs one (:meth:`CodeSLAM._keyframe_frame`)
     features: Features | None
-    raw: tuple[Frame, Features | None, PinholeCamera]  # the frame and keypoints before any rolling-shutter
-    # rectification, and the input camera whose rows were read out
+    raw: tuple[Frame, Features | None, PinholeCamera, torch.Tensor | None]  # the frame and keypoints before any
+    # rolling-shutter rectification, the input camera whose rows were read out and the input's depth (or None)
+    readout: torch.Tensor | None = None  # the rotation over the readout the frame was rectified by (None: not)
 
 
 def _scaled_translation(T: torch.Tensor, s: float | None) -> torch.Tensor:
@@ -605,8 +607,8 @@ class CodeSLAM:
         input frame, so keypoints see its full resolution)."""
         if self.camera is None:
             self.camera = frame.camera
-        with timer("resample"):
-            net = resample_frame(frame, self.camera)
+        with timer("resample"):  # the depth is resampled for keyframes only (_keyframe_frame)
+            net = resample_frame(dataclasses.replace(frame, depth=None), self.camera)
         features = None
         if self.config.features.enabled:
             if self.sparse is None:
@@ -617,7 +619,7 @@ class CodeSLAM:
                                                     self.sparse.extract.orb.getScaleFactor())
             with timer("features"):
                 features = self.sparse.features_of(frame)
-        raw = (net, features, frame.camera)
+        raw = (net, features, frame.camera, frame.depth)
         if self.readout <= 0:
             return _Views(net, features, raw)
         with timer("resample"):
@@ -660,7 +662,7 @@ class CodeSLAM:
         """Evidence for the readout (:mod:`codeslam.slam.readout`): the tracked frame (own turn from the last frame
         ``turn``) aligned again to ``ref`` (turn ``kf_turn``, rectified by ``kf_readout`` times it), photometrically
         from its tracked pose, under readout 0 and each candidate; the choice so far holds from the next frame."""
-        net, _, sensor = views.raw
+        net, _, sensor, _ = views.raw
 
         def residual(c: float) -> float:  # the frame keeps the keyframe's distortion under hypothesis c
             readout = c * (turn - kf_turn) + kf_readout * kf_turn
@@ -676,22 +678,38 @@ class CodeSLAM:
         if self.readout_choice.value is not None:
             self.readout = self.readout_choice.value
 
-    def _rectified_views(self, raw: tuple[Frame, Features | None, PinholeCamera],
+    def _rectified_views(self, raw: tuple[Frame, Features | None, PinholeCamera, torch.Tensor | None],
                          readout: torch.Tensor | None) -> _Views:
         """The views of ``raw`` (the frame in the network's camera, its keypoints, the input camera whose rows were
-        read out) rectified by the readout rotation ``readout`` (as they are for None); they keep ``raw``."""
-        net, features, sensor = raw
+        read out, the input's depth) rectified by the readout rotation ``readout`` (as they are for None); they
+        keep ``raw``."""
+        net, features, sensor, _ = raw
         if readout is None:
             return _Views(net, features, raw)
         if features is not None and len(features) > 0:
             uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, sensor, readout)
             features = dataclasses.replace(features, uv=uv.numpy())
-        return _Views(_rectified(net, sensor, readout), features, raw)
+        return _Views(_rectified(net, sensor, readout), features, raw, readout)
+
+    @staticmethod
+    def _keyframe_frame(views: _Views) -> Frame:
+        """``views.frame`` with the input's depth (if any) resampled to the network's camera and rectified as the
+        frame was: the map keeps it beside the keyframe's estimate, and a stand-in depth model reads it. Tracking
+        never reads depth, so the other frames skip this (TUM fr1/rpy: about 1.4 ms of every frame's 640x480 ->
+        128x96 resampling and rectification, on the tracking thread)."""
+        net, _, sensor, depth = views.raw
+        if depth is None:
+            return views.frame
+        if sensor != net.camera:  # as resample_frame does for the image
+            depth = resample_depth(depth[None, None].float(), sensor, net.camera)[0, 0]
+        if views.readout is not None:
+            depth = rectify_image(depth[None], source_pixels(net.camera, sensor, views.readout), mode="nearest")[0][0]
+        return dataclasses.replace(views.frame, depth=depth)
 
     def _make_keyframe(self, views: _Views, T_wc: torch.Tensor, kid: int, segment: int) -> MapKeyframe:
         """Decode the frame's depth model (the network's forward pass and code Jacobian, once per keyframe, Sec.
         4.1) and make keyframe ``kid`` of map segment ``segment`` at ``T_wc`` with the zero code."""
-        frame = views.frame
+        frame = self._keyframe_frame(views)
         decoder = self.depth_model(frame)
         H, W = frame.image.shape[-2:]
         need = self.config.decoder_levels
