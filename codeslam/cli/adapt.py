@@ -30,7 +30,10 @@ def adapt_command(
                                       "default: no motion, estimated in the warm-up."),
     steps: int | None = typer.Option(None, "--steps", help="Adam steps in all (default 400)."),
     warmup: int | None = typer.Option(None, "--warmup", help="Steps that estimate motion only (default 100)."),
-    lr: float | None = typer.Option(None, "--lr", help="Learning rate of the network weights (default 1e-5)."),
+    lr: float | None = typer.Option(None, "--lr", help="Learning rate of the network weights (default 1e-3; "
+                                    "1e-5 suits --trainable all)."),
+    trainable: str | None = typer.Option(None, "--trainable", help="Which weights adapt: zero_code (default: what "
+                                         "the zero-code depth depends on and the code Jacobian does not) or all."),
     seed: int | None = typer.Option(None, "--seed", help="Seed of the frame order."),
     resume: bool = typer.Option(False, "--resume", help="Continue from the run folder's checkpoint."),
     stop_after: int | None = typer.Option(None, "--stop-after", help="Stop (with a checkpoint) after this many "
@@ -57,7 +60,8 @@ def adapt_command(
     device = check_device(device)
     check_output_file(out)
     cfg = AdaptConfig()
-    overrides = {k: v for k, v in dict(steps=steps, pose_warmup=warmup, lr=lr, seed=seed).items() if v is not None}
+    overrides = {k: v for k, v in dict(steps=steps, pose_warmup=warmup, lr=lr, seed=seed,
+                                       trainable=trainable).items() if v is not None}
     if "steps" in overrides and "pose_warmup" not in overrides:
         overrides["pose_warmup"] = min(cfg.pose_warmup, overrides["steps"] // 4)
     cfg = dataclasses.replace(cfg, **overrides)  # validated by AdaptConfig

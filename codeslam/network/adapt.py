@@ -8,7 +8,10 @@ per pixel the smallest over the neighbours so that occlusions and pixels leaving
 
 * the network's weights (after ``pose_warmup`` steps in which only the other variables move), held near their
   start by an L2 anchor (``anchor``), so that a short video cannot undo what the network knew, and each frame's
-  mean log zero-code depth held at the start network's (``scale_anchor``): the video cannot tell the scale;
+  mean log zero-code depth held at the start network's (``scale_anchor``): the video cannot tell the scale. By
+  default only the weights that the zero-code depth D(I, 0) depends on and the code Jacobian J(I) does not
+  (``trainable``, :func:`zero_code_parameters`): the prior adapts, and the span SLAM's window optimises codes in
+  stays the start network's;
 * one code c_i per frame, under the VAE's prior N(0, I) (``code_prior`` * 0.5 |c|² per image, divided by the
   pixel count as in training), the depth being D(I_i, c_i);
 * the zero-code depth D(I_i, 0) is put through the same photometric loss (``zero_code_weight``), so the
@@ -66,6 +69,8 @@ WARMUP_BATCH_FACTOR = 4
 WARMUP_POSE_LR_FACTOR = 5.0
 #: Points nearer than this (metres) to the source camera are not compared.
 MIN_WARP_DEPTH = 0.05
+#: AdaptConfig.trainable's choices.
+TRAINABLE = ("zero_code", "all")
 
 
 @dataclass(frozen=True)
@@ -81,8 +86,15 @@ class AdaptConfig:
     batch: int = 6
     # Frame offsets of the neighbours a target frame is warped into.
     neighbours: tuple[int, ...] = (-2, -1, 1, 2)
-    # Adam learning rates: network weights, codes, motions (per unit of the se(3) vector) and brightness.
-    lr: float = 1e-5
+    # Which network weights adapt: "zero_code" (what D(I, 0) depends on and the code Jacobian does not, see
+    # zero_code_parameters) or "all". Measured (docs/results/depth_prior_ablation.md, 2026-11-27): 400 steps on
+    # the first half of a recording, held-out zero-code RMSE on the second, shipped -> adapted: HoloLens walk
+    # 0.1143 -> 0.1130, TUM fr1/rpy 0.1251 -> 0.1237 at lr 1e-3; "all" at lr 1e-5 (the former default)
+    # 0.1131 and 0.1249, and longer runs of "all" made SLAM on the held-out halves worse.
+    trainable: str = "zero_code"
+    # Adam learning rates: network weights (1e-5 suits trainable "all"), codes, motions (per unit of the se(3)
+    # vector) and brightness.
+    lr: float = 1e-3
     lr_code: float = 1e-2
     lr_pose: float = 2e-3
     lr_brightness: float = 1e-2
@@ -115,6 +127,8 @@ class AdaptConfig:
                 raise ConfigError(f"adapt.{name} must be >= 1, got {getattr(self, name)}")
         if not 0 <= self.pose_warmup <= self.steps:
             raise ConfigError(f"adapt.pose_warmup must lie in [0, steps], got {self.pose_warmup}")
+        if self.trainable not in TRAINABLE:
+            raise ConfigError(f"adapt.trainable must be one of {', '.join(TRAINABLE)}, got {self.trainable!r}")
         if not self.neighbours or 0 in self.neighbours:
             raise ConfigError(f"adapt.neighbours must be non-zero frame offsets, got {list(self.neighbours)}")
         for name in ("lr", "lr_code", "lr_pose", "lr_brightness", "huber"):
@@ -142,6 +156,30 @@ class AdaptResult:
 
 
 # ------------------------------------------------------------------------------------------------ the loss
+def zero_code_parameters(model: CodeNetwork) -> list[tuple[torch.nn.Parameter, torch.Tensor | None]]:
+    """The parameters that the zero-code depth D(I, 0) depends on and the code Jacobian J(I) does not, each with
+    the mask of its adaptable entries (None: all of them).
+
+    Every layer of the linear decoder is ``W_y y + W_f f + W_yf (y * f) + b`` on the decoder feature y and the
+    image feature f (:func:`~codeslam.network.model.join`), and J is the product of the ``W_y`` and ``W_yf`` (and
+    the code's fully connected weight, the heads' weights on y and the transposed convolution's) with the image
+    features (:meth:`~codeslam.network.model.DepthDecoder.code_directions`). So the biases and the ``W_f`` slices
+    may move; the image U-Net, the encoder and every weight on y may not. Our own choice, not the paper's: SLAM
+    optimises each keyframe's code in J's span, and adapting J as well made SLAM on held-out frames worse
+    (docs/results/depth_prior_ablation.md)."""
+    dec = model.decoder
+    if not dec.linear:
+        raise ConfigError("adapt.trainable 'zero_code' needs the linear decoder; use 'all'")
+    out: list[tuple[torch.nn.Parameter, torch.Tensor | None]] = []
+    for conv in (*dec.convs, dec.heads[0]):  # input channels [y, f, y * f]
+        K = conv.weight.shape[1] // 3
+        mask = torch.zeros_like(conv.weight)
+        mask[:, K:2 * K] = 1.0
+        out.append((conv.weight, mask))
+    out += [(m.bias, None) for m in (*dec.convs, *dec.heads, dec.deconv, dec.fc)]
+    return out
+
+
 def chain_poses(T0: torch.Tensor, delta: torch.Tensor) -> torch.Tensor:
     """Poses T_wc_i = T0_0 prod_(k<=i) exp(delta_k) (N, 4, 4) from the first pose T0 (4, 4) and the motions
     delta (N, 6) (delta_0 is applied to the first frame; :func:`adapt` keeps it 0)."""
@@ -283,7 +321,16 @@ def adapt(
     codes = torch.zeros(N, model.code_size, device=dev, requires_grad=True)
     delta = delta0.to(dev).clone().requires_grad_(True)
     bright = torch.zeros(N, 2, device=dev, requires_grad=True)  # log gain, offset
-    net_params = [p for p in model.parameters() if p.requires_grad]
+    was_trainable = [(p, p.requires_grad) for p in model.parameters()]
+    if cfg.trainable == "zero_code":
+        chosen = zero_code_parameters(model)
+        masks = [(p, m) for p, m in chosen if m is not None]  # applied to the gradients before every step
+        for p in model.parameters():
+            p.requires_grad_(False)
+        net_params = [p for p, _ in chosen]
+    else:
+        masks = []
+        net_params = [p for p in model.parameters() if p.requires_grad]
     opt = torch.optim.Adam([
         {"params": net_params, "lr": cfg.lr},
         {"params": [codes], "lr": cfg.lr_code},
@@ -293,7 +340,7 @@ def adapt(
     done, elapsed_before = 0, 0.0
     ckpt = run_dir / CHECKPOINT_NAME
     if resume and ckpt.is_file():
-        done, elapsed_before, start = _restore(ckpt, model, opt, codes, delta, bright, start)
+        done, elapsed_before, start = _restore(ckpt, model, opt, codes, delta, bright, start, cfg)
     ensure_dir(run_dir)
     with atomic_write(run_dir / "adapt_config.json") as f:
         f.write(json.dumps({"adapt": cfg.to_dict(), "frames": N, "source": source or {}}, indent=1))
@@ -370,6 +417,9 @@ def adapt(
         loss = (photo[0] if warm else photo[0] + cfg.zero_code_weight * photo[1]) + prior + anchor
         opt.zero_grad(set_to_none=True)
         loss.backward()
+        for p, m in masks:
+            if p.grad is not None:
+                p.grad.mul_(m)
         opt.step()
         acc += torch.tensor([float(loss.detach()), float(photo[0].detach()), float(photo[1].detach()),
                              float(prior.detach())], dtype=torch.float64)
@@ -387,8 +437,8 @@ def adapt(
             save(step_done)
         if progress is not None:
             progress(step_done, cfg.steps, last)
-    for p in net_params:
-        p.requires_grad_(True)
+    for p, flag in was_trainable:
+        p.requires_grad_(flag)
     delta.requires_grad_(False)
     model.eval()
     finished = end == cfg.steps
@@ -417,13 +467,16 @@ def _save(path, model, opt, codes, delta, bright, start, step, elapsed, cfg: Ada
                                  "optim_param_groups": json.dumps(groups)})
 
 
-def _restore(path, model, opt, codes, delta, bright, start):
+def _restore(path, model, opt, codes, delta, bright, start, cfg: AdaptConfig):
     """Load an adaptation checkpoint -> (step, elapsed seconds, start weights)."""
     tensors, meta = read_tensors(path)
     if meta.get("format") != ADAPT_CHECKPOINT_FORMAT:
         raise WeightsError(f"{path} is not a codeslam adaptation checkpoint")
     if meta.get("config") != model.config.to_json():
         raise ConfigError(f"{path} was written for another network")
+    saved = json.loads(meta.get("adapt", "{}")).get("trainable", "all")  # checkpoints before the option: all
+    if saved != cfg.trainable:
+        raise ConfigError(f"{path} adapted trainable={saved!r}; resume it with the same, not {cfg.trainable!r}")
     try:
         model.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("model.")})
         start = {k[6:]: v for k, v in tensors.items() if k.startswith("start.")}
@@ -445,4 +498,5 @@ def _restore(path, model, opt, codes, delta, bright, start):
             from None
 
 
-__all__ = ["AdaptConfig", "AdaptResult", "adapt", "chain_poses", "photometric_loss", "relative_motions"]
+__all__ = ["AdaptConfig", "AdaptResult", "adapt", "chain_poses", "photometric_loss", "relative_motions",
+           "zero_code_parameters"]

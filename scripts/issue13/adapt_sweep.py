@@ -15,7 +15,7 @@ Two steps, so that the GPU machine needs neither ``../shared`` nor the readers' 
           append one JSON line to --results.
 
           python scripts/issue13/adapt_sweep.py run PACK.safetensors --name NAME --device cuda --results R.jsonl \\
-              [--keep-weights W.safetensors] --set steps=3000 --set lr=1e-4 --set anchor=1
+              [--keep-weights W.safetensors] --set steps=3000 --set lr=1e-4 --set anchor=1 --set trainable=all
 
 The held-out half is never seen by the adaptation; its depth is read only by the evaluation.
 """
@@ -159,7 +159,8 @@ def run(args) -> None:
             break
     secs = time.perf_counter() - t0
     after = _prior(net, p["test_images"], p["test_depth"], a)
-    row = {"name": args.name, "pack": Path(args.pack).name, "config": overrides, "seconds": round(secs, 1),
+    row = {"name": args.name, "pack": Path(args.pack).name, "config": overrides, "trainable": cfg.trainable,
+           "lr": cfg.lr, "seconds": round(secs, 1),
            "steps_done": done, "finished": bool(res.finished),
            "device": args.device, "last": res.last, "before": before, "after": after}
     with open(args.results, "a") as f:

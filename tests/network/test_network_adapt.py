@@ -8,6 +8,7 @@ import torch
 
 from codeslam.cli import main
 from codeslam.data.tum import TumSequence
+from codeslam.errors import ConfigError
 from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.lie import se3_exp, se3_inverse
 from codeslam.network.adapt import AdaptConfig, adapt, chain_poses, photometric_loss, relative_motions
@@ -121,3 +122,43 @@ def test_automask_ignores_what_no_motion_explains(walk_96):
     plain = float(photometric_loss(gray[3:4], depth[3:4, None], same, valid, moved, cam, 0.05))
     masked = float(photometric_loss(gray[3:4], depth[3:4, None], same, valid, moved, cam, 0.05, automask=True))
     assert plain > 1e-4 and masked == 0.0  # no pixel is explained better by the wrong motion than by none
+
+
+@pytest.mark.parametrize("trainable", ["zero_code", "all"])
+def test_zero_code_adaptation_moves_the_prior_and_keeps_the_code_jacobian(tmp_path, walk, tiny_config, trainable):
+    """``trainable='zero_code'`` (the default) adapts D(I, 0) while J(I), the span SLAM optimises codes in, stays
+    exactly the start network's; 'all' moves both."""
+    images, _, _ = _frames(walk)
+    torch.manual_seed(0)
+    start = CodeNetwork(tiny_config())
+    model = CodeNetwork(tiny_config())
+    model.load_state_dict(start.state_dict())
+    cfg = AdaptConfig(steps=6, pose_warmup=2, batch=2, levels=2, lr=1e-2, trainable=trainable)
+    adapt(model, images, tmp_path / trainable, cfg)
+    assert all(p.requires_grad for p in model.parameters())  # the caller's flags are given back
+
+    def decoded(net: CodeNetwork) -> tuple[torch.Tensor, torch.Tensor]:
+        net.eval()
+        with torch.no_grad():
+            x = to_network_image(images[:3], net.config.in_channels)
+            feats = net.image_features(x)
+            zero = net.decode(feats, feats[0].new_zeros(3, net.code_size))[0]
+            J = net.decoder.code_directions(feats, torch.eye(net.code_size))[0]
+        return zero, J
+
+    (z0, J0), (z1, J1) = decoded(start), decoded(model)
+    assert float((z1 - z0).abs().max()) > 1e-3  # the prior moved
+    if trainable == "zero_code":
+        assert torch.equal(J1, J0)
+    else:
+        assert float((J1 - J0).abs().max()) > 1e-4
+
+
+def test_a_checkpoint_resumes_only_with_the_same_trainable_weights(tmp_path, walk, tiny_config):
+    images, _, _ = _frames(walk)
+    torch.manual_seed(0)
+    cfg = AdaptConfig(steps=4, pose_warmup=2, batch=2, levels=2, trainable="all")
+    adapt(CodeNetwork(tiny_config()), images, tmp_path / "r", cfg, stop_after=3)
+    with pytest.raises(ConfigError, match="trainable"):
+        adapt(CodeNetwork(tiny_config()), images, tmp_path / "r", AdaptConfig(steps=4, pose_warmup=2, batch=2,
+                                                                                levels=2), resume=True)
