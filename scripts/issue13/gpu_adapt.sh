@@ -19,17 +19,22 @@ export PYTHONUNBUFFERED=1
 py=${PYTHON:-python3}
 $py -c "import torch; print('torch', torch.__version__, torch.cuda.is_available() and torch.cuda.get_device_name())"
 
-# name|settings, in the order they start (most informative first)
+# name|settings, in the order they start (most informative first). The sweeps of 2026-11-26 adapted all weights,
+# the default then; since 2026-11-27 `codeslam adapt` adapts the zero-code path only (AdaptConfig.trainable), so
+# those jobs name trainable=all.
+all="--set trainable=all"
 jobs=(
   "card|"
-  "lr1e-4_a1_3k|--set steps=3000 --set lr=1e-4 --set anchor=1"
-  "lr1e-4_3k|--set steps=3000 --set lr=1e-4"
-  "lr3e-4_a0.1_3k|--set steps=3000 --set lr=3e-4 --set anchor=0.1"
-  "lr1e-4_a1_3k_b24|--set steps=3000 --set lr=1e-4 --set anchor=1 --set batch=24"
-  "lr1e-4_a1_3k_noscale|--set steps=3000 --set lr=1e-4 --set anchor=1 --set scale_anchor=0"
-  "lr1e-4_a1_8k|--set steps=8000 --set lr=1e-4 --set anchor=1"
-  "lr1e-4_a1_2k|--set steps=2000 --set lr=1e-4 --set anchor=1"
-  "lr1e-4_a1_2k_s10|--set steps=2000 --set lr=1e-4 --set anchor=1 --set scale_anchor=10"
+  "zc_1e-3_3k|--set steps=3000 --set lr=1e-3"
+  "card_all|$all --set lr=1e-5"
+  "lr1e-4_a1_3k|$all --set steps=3000 --set lr=1e-4 --set anchor=1"
+  "lr1e-4_3k|$all --set steps=3000 --set lr=1e-4"
+  "lr3e-4_a0.1_3k|$all --set steps=3000 --set lr=3e-4 --set anchor=0.1"
+  "lr1e-4_a1_3k_b24|$all --set steps=3000 --set lr=1e-4 --set anchor=1 --set batch=24"
+  "lr1e-4_a1_3k_noscale|$all --set steps=3000 --set lr=1e-4 --set anchor=1 --set scale_anchor=0"
+  "lr1e-4_a1_8k|$all --set steps=8000 --set lr=1e-4 --set anchor=1"
+  "lr1e-4_a1_2k|$all --set steps=2000 --set lr=1e-4 --set anchor=1"
+  "lr1e-4_a1_2k_s10|$all --set steps=2000 --set lr=1e-4 --set anchor=1 --set scale_anchor=10"
 )
 start=$SECONDS
 pids=()
