@@ -131,7 +131,10 @@ def test_linear_prior_gradient_and_hessian_match_autograd(problem):
     prior.add_to(H, gv, layout, state)
     idx = layout.indices(blocks)
     torch.testing.assert_close(H[idx[:, None], idx[None, :]], prior.H)
-    assert H.abs().sum() == prior.H.abs().sum()  # nothing outside the prior's blocks
+    outside = H.clone()
+    outside[idx[:, None], idx[None, :]] = 0.0
+    assert not bool(outside.any())  # nothing outside the prior's blocks (not a sum's equality: its last bit
+    # depends on how the reduction is vectorised, which failed under MKL_CBWR=COMPATIBLE)
 
     # The gradient b + H d is exact for code blocks and first-order for poses (d(d)/d(increment) ~ I near x0).
     def cost(delta):
