@@ -702,9 +702,9 @@ class CodeSLAM:
             return views.frame
         if sensor != net.camera:  # as resample_frame does for the image
             depth = resample_depth(depth[None, None].float(), sensor, net.camera)[0, 0]
-        if views.readout is not None:
-            depth = rectify_image(depth[None], source_pixels(net.camera, sensor, views.readout), mode="nearest")[0][0]
-        return dataclasses.replace(views.frame, depth=depth)
+        net = dataclasses.replace(net, depth=depth)
+        # rectified again as views.frame was (the same image and mask; _rectified carries the depth along)
+        return net if views.readout is None else _rectified(net, sensor, views.readout)
 
     def _make_keyframe(self, views: _Views, T_wc: torch.Tensor, kid: int, segment: int) -> MapKeyframe:
         """Decode the frame's depth model (the network's forward pass and code Jacobian, once per keyframe, Sec.
