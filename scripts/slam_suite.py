@@ -126,16 +126,18 @@ def row(folder: Path) -> list[str]:
 
 
 def table(outs: list[Path]) -> str:
+    """The runs any of ``outs`` holds (a run folder or its log), in the suite's order, one row each."""
+    names = [name for name, _, _ in RUNS if any((o / name).exists() or (o / f"{name}.log").exists() for o in outs)]
     head = ["failed", "ATE Sim(3) m (never moving)", "of path", "rotation °", "RPE mm (after the scale)", "scale",
             "frames/s"]
     if len(outs) == 1:
         lines = ["| run | " + " | ".join(head) + " |", "|---" * (len(head) + 1) + "|"]
-        lines += [f"| {name} | " + " | ".join(row(outs[0] / name)) + " |" for name, _, _ in RUNS]
+        lines += [f"| {name} | " + " | ".join(row(outs[0] / name)) + " |" for name in names]
         return "\n".join(lines)
     # side by side: failed, ATE, rotation per folder
     cols = [f"{o.name}: {c}" for o in outs for c in ("failed", "ATE Sim(3) m", "rotation °")]
     lines = ["| run | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
-    for name, _, _ in RUNS:
+    for name in names:
         cells = []
         for o in outs:
             r = row(o / name)
