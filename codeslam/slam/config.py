@@ -338,7 +338,9 @@ class WindowConfig:
     """... and a keyframe's median depth by at most this much in log (a factor 3). The network's single-view
     scale errs by tens of percent from view to view and the window rightly reconciles it (at 0.4, a factor 1.5,
     solves on the generator's walk were rejected for that and its ATE was 2.4 times higher); what this catches is
-    a depth running away."""
+    a depth running away. Not applied to the keyframe the solve was made for: its depth before that first solve
+    is the network's single view, which can be 3x off the map's scale (the generator's walk 43, frame 83: the
+    rejected solve left it so, and the frames tracked against it gained 4.1 deg of rotation error)."""
     motion_prior_acceleration: float = 1.0
     """Constant-velocity prior on consecutive keyframes' positions (:mod:`codeslam.slam.velocity_prior`): the
     acceleration (m/s^2, map units) the camera may hold between two keyframe intervals; 0 switches it off.

@@ -212,7 +212,9 @@ class Mapper:
         t3 = time.perf_counter()
         report = self.window.optimise(self._stop_solve.is_set)  # codes and poses: photometric + geometric + keypoints
         if self.config.window.rollback:
-            report.rejected = self.window.check(before, depth_before)
+            # The new keyframe's depth before its first solve is the network's single view, not a map estimate:
+            # that solve may rightly rescale it by any factor (the map's scale and the view's can differ 3x).
+            report.rejected = self.window.check(before, {i: d for i, d in depth_before.items() if i != kf.id})
             if report.rejected:
                 self.window.restore(before)
         self.refresh_points()
