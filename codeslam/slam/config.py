@@ -313,6 +313,13 @@ class WindowConfig:
     depth_scale_sigma: float = 0.3
     """Prior on each keyframe's mean log depth at its zero-code value (:mod:`codeslam.sfm.scale_prior`): how far
     (in log depth) the window may move a keyframe's scale from the network's prediction; 0 switches it off."""
+    window_scale_sigma: float = 0.0
+    """Prior on the window's keyframes' mean log depth taken together, at their zero-code values
+    (:class:`~codeslam.sfm.scale_prior.WindowScalePrior`): how far the window as a whole may move from the
+    network's scale, its keyframes' relative scales left to ``depth_scale_sigma``; applied in every solve, not
+    marginalised; 0 switches it off. Off by default: at 0.05 (docs/results/slam_table.md, session of 2026-11-28)
+    every second HoloLens frame went 0.90 / 0.47 / 0.96 -> 0.24 / 0.51 / 0.28 m over three start frames, but the
+    stand-in runs (HoloLens 0.149 -> 0.235 m) and both corridors got worse, and no generator walk reached 1%."""
     code_directions: int = 64
     """Each keyframe's code is optimised in the span of this many leading directions of its decoder's Jacobian
     (:meth:`codeslam.sfm.decoder.LinearDecoder.principal`; 0, or the code size or more: the whole code). The
@@ -362,6 +369,8 @@ class WindowConfig:
             raise ConfigError(f"window.min_pair_overlap must lie in [0, 1], got {self.min_pair_overlap}")
         if not self.depth_scale_sigma >= 0:
             raise ConfigError(f"window.depth_scale_sigma must be >= 0, got {self.depth_scale_sigma}")
+        if not self.window_scale_sigma >= 0:
+            raise ConfigError(f"window.window_scale_sigma must be >= 0, got {self.window_scale_sigma}")
         if not self.motion_prior_acceleration >= 0:
             raise ConfigError(f"window.motion_prior_acceleration must be >= 0, got {self.motion_prior_acceleration}")
         if not (isinstance(self.code_directions, int) and self.code_directions >= 0):

@@ -39,7 +39,7 @@ from codeslam.sfm.normal_equations import assemble
 from codeslam.sfm.pairs import view_overlap
 from codeslam.sfm.priors import AffinePrior, CodePrior
 from codeslam.sfm.residuals import evaluate_pairs, pair_jacobians
-from codeslam.sfm.scale_prior import DepthScalePrior
+from codeslam.sfm.scale_prior import DepthScalePrior, WindowScalePrior
 from codeslam.sfm.solver import LMReport, PairProblem, coarse_to_fine
 from codeslam.sfm.variables import (
     AFFINE,
@@ -338,6 +338,8 @@ class SlidingWindow:
             terms = ([] if prior is None else [prior]) + sparse_terms
             if self.cfg.depth_scale_sigma > 0:  # each keyframe's scale near the network's prediction
                 terms.append(DepthScalePrior(levels[lvl], list(range(F_)), self.cfg.depth_scale_sigma))
+            if self.cfg.window_scale_sigma > 0:  # the window's scale as a whole near the network's
+                terms.append(WindowScalePrior(levels[lvl], list(range(F_)), self.cfg.window_scale_sigma))
             return PairProblem(levels[lvl], pairs, cfg, terms)
 
         state, report.levels, _ = coarse_to_fine(problem_at, state, layout, cfg,

@@ -66,6 +66,38 @@ def test_depth_scale_prior_jacobian_matches_autograd_float64():
     assert torch.allclose(g, J * r) and torch.allclose(H, torch.outer(J, J))
 
 
+def test_window_scale_prior_prices_the_common_scale_only_and_its_normal_equations_match_autograd_float64():
+    from codeslam.sfm.keyframes import Keyframe
+    from codeslam.sfm.scale_prior import WindowScalePrior
+
+    frames = synth_frames(3, 6, 10.0)
+    keys = [Keyframe(f.gray.to(D), f.camera, standin_depth_model(num_levels=3)(f).to(dtype=D)) for f in frames[::2]]
+    level = build_levels(keys, [1], D, torch.device("cpu"))[1]
+    C = keys[0].decoder.code_size
+    prior = WindowScalePrior(level, [0, 1, 2], sigma=0.1)
+    codes = 0.3 * torch.randn(3, C, generator=torch.Generator().manual_seed(2), dtype=D)
+    poses = torch.eye(4, dtype=D).expand(3, 4, 4)
+    state = SfMState(poses, codes, torch.zeros(0, 2, dtype=D))
+
+    def cost(c):
+        return prior.cost(SfMState(poses, c.reshape(3, C), state.affine))
+
+    # the cost is the square of the frames' mean scale change: their differences cost nothing
+    m = prior._mean_log_depth(prior._prox(state)) - prior._target
+    assert torch.allclose(cost(codes.flatten()), 0.5 * (m.mean() / 0.1) ** 2)
+    # Gauss-Newton: g = J^T r exactly, H = J^T J (autograd's Hessian of the cost minus the residual's curvature)
+    layout = VariableLayout([(BlockId(CODE, k), C) for k in range(3)])
+    H, g = torch.zeros(3 * C, 3 * C, dtype=D), torch.zeros(3 * C, dtype=D)
+    prior.add_to(H, g, layout, state)
+    g_auto = torch.autograd.functional.jacobian(cost, codes.flatten())
+    assert torch.allclose(g, g_auto, atol=1e-10, rtol=1e-8)
+    J_mean = torch.autograd.functional.jacobian(
+        lambda c: (prior._mean_log_depth(prior._prox(SfMState(poses, c.reshape(3, C), state.affine)))
+                   - prior._target).mean() / 0.1, codes.flatten())
+    assert torch.allclose(H, torch.outer(J_mean, J_mean), atol=1e-10, rtol=1e-8)
+    assert bool((H[:C, C:2 * C].abs() > 0).any())  # the frames are coupled through their common scale
+
+
 def _system():
     return CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
 
