@@ -348,6 +348,12 @@ class WindowConfig:
     a depth running away. Not applied to the keyframe the solve was made for: its depth before that first solve
     is the network's single view, which can be 3x off the map's scale (the generator's walk 43, frame 83: the
     rejected solve left it so, and the frames tracked against it gained 4.1 deg of rotation error)."""
+    max_runaway_share: float = 0.01
+    """... and the share of a keyframe's pixels whose decoded proximity it sent to or beyond the ends of (0, 1)
+    (depth clamped to infinity or zero) by at most this; 1 switches the test off. No network run of the suite
+    ever left a pixel there; the stand-in's smooth code basis did, in the window solves of rotation-only
+    keyframes (the generator's walk 43, frames 104-119: up to 2,453 times the zero code's depth at the 95th
+    percentile, and the frames tracked against them gained 7.9 deg of rotation error)."""
     motion_prior_acceleration: float = 1.0
     """Constant-velocity prior on consecutive keyframes' positions (:mod:`codeslam.slam.velocity_prior`): the
     acceleration (m/s^2, map units) the camera may hold between two keyframe intervals; 0 switches it off.
@@ -369,6 +375,8 @@ class WindowConfig:
             raise ConfigError(f"window.min_pair_overlap must lie in [0, 1], got {self.min_pair_overlap}")
         if not self.depth_scale_sigma >= 0:
             raise ConfigError(f"window.depth_scale_sigma must be >= 0, got {self.depth_scale_sigma}")
+        if not 0 <= self.max_runaway_share <= 1:
+            raise ConfigError(f"window.max_runaway_share must be in [0, 1], got {self.max_runaway_share}")
         if not self.window_scale_sigma >= 0:
             raise ConfigError(f"window.window_scale_sigma must be >= 0, got {self.window_scale_sigma}")
         if not self.motion_prior_acceleration >= 0:

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from codeslam.constants import MAX_PROXIMITY, MIN_PROXIMITY
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.lie import se3_inverse, so3_log
 from codeslam.sfm.config import SfMConfig
@@ -110,6 +111,14 @@ class MapKeyframe:
                 raise ValueError("a marginalised keyframe keeps its finest depth only")
             return self.depth
         return self.keyframe.decoder.depth(self.code, level)
+
+    def runaway_share(self, code: torch.Tensor | None = None) -> float:
+        """Share of the finest level's pixels whose proximity at ``code`` (default: the keyframe's) lies at or
+        beyond the ends of (0, 1), where the depth is clamped to infinity or to zero (0 once marginalised)."""
+        if self.keyframe.decoder is None:
+            return 0.0
+        p = self.keyframe.decoder.prox(self.code if code is None else code, 0)
+        return float(((p <= MIN_PROXIMITY) | (p >= MAX_PROXIMITY) | ~torch.isfinite(p)).float().mean())
 
     def median_depth(self) -> float:
         """Median of the decoded depth (metres): the scene scale that keyframe selection compares against."""
@@ -374,8 +383,9 @@ class SlidingWindow:
     def check(self, before: WindowSnapshot, depth_before: dict[int, float]) -> str:
         """Why the solve that led from ``before`` to the current values must not be kept ('' if it may): a
         non-finite value, a relative pose between consecutive keyframes that turned or moved more than the
-        tracking could have been wrong by, or a keyframe whose median depth changed by more than
-        ``max_depth_change`` (log). Measured on the HoloLens walk before this check: solves that moved a
+        tracking could have been wrong by, a keyframe whose median depth changed by more than
+        ``max_depth_change`` (log), or one with more than ``max_runaway_share`` more of its pixels decoded to
+        proximity at or past 0 or 1 (depth clamped to infinity or zero). Measured on the HoloLens walk before this check: solves that moved a
         keyframe by tens of degrees threw the map away and every later frame failed."""
         cfg = self.cfg
         for k in self.keyframes:
@@ -399,6 +409,10 @@ class SlidingWindow:
                 change = abs(math.log(k.median_depth() / depth_before[k.id]))
                 if change > cfg.max_depth_change:
                     return f"keyframe {k.id}: median depth changed by a factor {math.exp(change):.2f}"
+            if k.id in before.values and cfg.max_runaway_share < 1.0:
+                share = k.runaway_share() - k.runaway_share(before.values[k.id][1])
+                if share > cfg.max_runaway_share:
+                    return f"keyframe {k.id}: {100 * share:.1f}% of its depth ran off to infinity or zero"
         return ""
 
     def reset(self) -> list[MapKeyframe]:

@@ -57,6 +57,7 @@ def test_resolved_config_round_trips_through_yaml(tmp_path):
         "trajectory: smoothed\n",
         "window: {code_directions: -1}\n",
         "window: {window_scale_sigma: -0.1}\n",
+        "window: {max_runaway_share: 1.5}\n",
         "tracker: {feature_start_level: -2}\n",
         "features: {retry_agreement: 1.5}\n",
         "tracker: {pyramid_levels: [3, 2], max_iterations: [8, 8], feature_start_level: 1}\n",  # finer than all

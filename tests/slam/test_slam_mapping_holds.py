@@ -120,6 +120,24 @@ def test_window_check_rejects_a_solve_that_moves_the_map_away():
     # A keyframe whose median depth the solve changed by a factor 5 (beyond the allowed factor 3).
     assert "median depth" in win.check(snap, {**depth, last.id: 5.0 * depth[last.id]})
     assert win.check(snap, {**depth, last.id: 1.5 * depth[last.id]}) == ""  # a factor 1.5 is reconciled, kept
+    # A solve that sends the top tenth of a keyframe's rows to proximity >= 1 (depth zero), its median untouched:
+    # the first code entry is made to move those rows only.
+    from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
+    from codeslam.sfm.keyframes import Keyframe
+
+    dec = last.keyframe.decoder
+    jac = torch.zeros_like(dec.levels[0].jac)
+    jac[0, : jac.shape[1] // 10] = 1.0
+    bumped = LinearDecoder((DecoderLevel(dec.levels[0].prox0, jac, dec.levels[0].uncertainty), *dec.levels[1:]),
+                           dec.avg_depth)
+    last.keyframe = Keyframe(last.keyframe.image, last.keyframe.camera, bumped, last.keyframe.valid)
+    start = last.code.clone()
+    last.code = start.clone()
+    last.code[0] += 2.0
+    assert last.runaway_share() > last.runaway_share(start) + 0.05  # 4 of 48 rows
+    assert "ran off" in win.check(snap, depth)
+    last.code[0] = start[0] + 0.01  # a small step leaves every proximity inside (0, 1)
+    assert win.check(snap, depth) == ""
     last.code = last.code * float("nan")
     assert "non-finite" in win.check(snap, depth)
 
