@@ -385,8 +385,9 @@ class SlidingWindow:
         non-finite value, a relative pose between consecutive keyframes that turned or moved more than the
         tracking could have been wrong by, a keyframe whose median depth changed by more than
         ``max_depth_change`` (log), or one with more than ``max_runaway_share`` more of its pixels decoded to
-        proximity at or past 0 or 1 (depth clamped to infinity or zero). Measured on the HoloLens walk before this check: solves that moved a
-        keyframe by tens of degrees threw the map away and every later frame failed."""
+        proximity at or past 0 or 1 (depth clamped to infinity or zero). Measured on the HoloLens walk before
+        this check: solves that moved a keyframe by tens of degrees threw the map away and every later frame
+        failed."""
         cfg = self.cfg
         for k in self.keyframes:
             if not (bool(torch.isfinite(k.T_wc).all()) and bool(torch.isfinite(k.code).all())):
