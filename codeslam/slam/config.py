@@ -246,6 +246,16 @@ class KeyframeConfig:
     against a keyframe that is leaving the view."""
     min_frames_between: int = 2
     """Frames that must pass after a keyframe before the next one (unless urgent): bounds the mapping load."""
+    take_when_busy: bool = False
+    """Parallel mapping: a keyframe wanted while the mapping thread is busy is taken as an urgent one is (the
+    tracker waits for the decoding of the keyframe before it, or stops that keyframe's window solve after its
+    current iteration, and hands the new one over), instead of being refused until the thread is idle. Off by
+    default: measured (docs/results/slam_table.md, session of 2026-11-28, tenth; ``--parallel --threads 2``, one
+    run at a time, ATE Sim(3) refused -> taken) it helps the real sequences and hurts the generator's walks, on
+    which nearly every solve is then cut short: TUM fr1/rpy 0.0146-0.0159 m, 1.44-1.61 deg (5 runs) -> 0.0089-
+    0.0130 m, 1.03-1.21 deg, 12.1-13.1 -> 10.1-11.6 frames/s; HoloLens walk 0.59-0.71 m (50-52 keyframes) ->
+    0.49-0.54 m (88); hand-held preset 0.066-0.071 -> 0.037 m; but generator walk 0.174-0.182 -> 0.218 m, walk 42
+    0.277-0.315 -> 0.297-0.380 m, corridor 0.32 m, 0.9 deg -> 0.71 m, 9.3 deg."""
     min_feature_inliers: int = 0
     """With features: a tracked frame whose pose rests on fewer ORB + PnP inliers against the keyframe than this
     becomes a keyframe (urgent, and exempt from the poor-photometric-fit hold), so that the next frames match its

@@ -344,7 +344,9 @@ class CodeSLAM:
             # Not when the matches are thinning out: the next frames would have nothing left to match.
             decision = dataclasses.replace(decision, add=False, reason="poor photometric fit")
         if decision.add and self.mapper.busy:  # PTAM: the mapping thread is still on the last keyframe
-            if decision.urgent:  # the reference is leaving the view: wait for the mapping thread rather than lose it
+            # The reference is leaving the view, or keyframes are taken when wanted (KeyframeConfig.take_when_busy):
+            # wait for the mapping thread rather than track on against a keyframe the map has outgrown.
+            if decision.urgent or self.config.keyframes.take_when_busy:
                 self._apply(self.mapper.wait(interrupt=True))
                 if self.ref.id != ref.id:  # a newer keyframe arrived meanwhile: track against it next frame
                     decision = dataclasses.replace(decision, add=False, reason="keyframe arrived")

@@ -4,6 +4,7 @@ without errors, and an error inside the mapping thread reaches the caller."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import pytest
@@ -156,3 +157,26 @@ def test_a_frame_lost_against_the_old_keyframe_waits_for_the_one_being_decoded()
     system, run, ev = _run(True, frames=preset_frames(21, 20, "walk", 5.0), depth_model=slow)
     assert [r.index for r in run.results if not r.tracking_ok] == []
     assert calls["n"] >= 3 and ev["ate_sim3_rmse"] <= 0.1 * ev["path_length_gt"], ev["ate_sim3_rmse"]
+
+
+@pytest.mark.parametrize("take", [False, True])
+def test_a_keyframe_wanted_while_the_mapping_thread_is_busy_is_refused_or_taken(take):
+    # A mapping thread slower than the camera (0.4 s per decode): refused, some wanted keyframes wait for an idle
+    # thread ("mapping busy"); with keyframes.take_when_busy the tracker waits for the thread and none is refused.
+    factory = standin_depth_model()
+    calls = {"n": 0}
+
+    def slow(frame):
+        calls["n"] += 1
+        if calls["n"] > 1:
+            time.sleep(0.4)
+        return factory(frame)
+
+    seq = MemorySequence(preset_frames(21, 16, "walk", 10.0))
+    cfg = SLAMConfig()
+    cfg = dataclasses.replace(cfg, keyframes=dataclasses.replace(cfg.keyframes, take_when_busy=take))
+    system = CodeSLAM(cfg, slow, parallel=True)
+    run = run_slam(seq, system, seq.frames[0].camera)
+    busy = [r.index for r in run.results if r.keyframe is not None and r.keyframe.reason == "mapping busy"]
+    assert all(r.tracking_ok for r in run.results)
+    assert (busy == []) if take else (busy != []), busy
