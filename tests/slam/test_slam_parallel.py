@@ -18,11 +18,26 @@ from codeslam.slam.pipeline import ground_truth, run_slam
 from codeslam.slam.system import CodeSLAM
 
 
-def _run(parallel: bool, frames=None, depth_model=None):
+def _run(parallel: bool, frames=None, depth_model=None, config: SLAMConfig | None = None):
     seq = MemorySequence(frames or preset_frames(21, 24, "walk", 10.0))
-    system = CodeSLAM(SLAMConfig(), depth_model or standin_depth_model(), parallel=parallel)
+    system = CodeSLAM(config or SLAMConfig(), depth_model or standin_depth_model(), parallel=parallel)
     run = run_slam(seq, system, seq.frames[0].camera)
     return system, run, evaluate_run(run.trajectory, ground_truth(seq, range(len(seq))))
+
+
+def _slow_depth_model(seconds: float):
+    """The stand-in depth model, every keyframe after the first (decoded inline) taking ``seconds`` longer: a
+    mapping thread slower than the camera. Returns the model and its call counter."""
+    factory = standin_depth_model()
+    calls = {"n": 0}
+
+    def slow(frame):
+        calls["n"] += 1
+        if calls["n"] > 1:
+            time.sleep(seconds)
+        return factory(frame)
+
+    return slow, calls
 
 
 def test_parallel_mapping_tracks_the_same_frames_within_tolerance():
@@ -143,15 +158,7 @@ def test_a_frame_lost_against_the_old_keyframe_waits_for_the_one_being_decoded()
     # A mapping thread much slower than the camera (each keyframe's decode takes 1.5 s here): frames after a
     # keyframe was asked for are tracked against the older one until they leave it. Then the tracker waits for
     # the new keyframe instead of giving the frame up (a parallel HoloLens run lost frames 78-80 and 148-150 so).
-    factory = standin_depth_model()
-    calls = {"n": 0}
-
-    def slow(frame):
-        calls["n"] += 1
-        if calls["n"] > 1:  # the first keyframe is decoded inline
-            time.sleep(1.5)
-        return factory(frame)
-
+    slow, calls = _slow_depth_model(1.5)
     # The generator's walk at 5 frames/s (about 18 cm between frames). Measured (1.5 s decodes): without the wait
     # frames 12-14 or 12-15 were lost, ATE 0.31-0.39 m of a 3.5 m path; with it none, 0.18 m (5%).
     system, run, ev = _run(True, frames=preset_frames(21, 20, "walk", 5.0), depth_model=slow)
@@ -163,20 +170,10 @@ def test_a_frame_lost_against_the_old_keyframe_waits_for_the_one_being_decoded()
 def test_a_keyframe_wanted_while_the_mapping_thread_is_busy_is_refused_or_taken(take):
     # A mapping thread slower than the camera (0.4 s per decode): refused, some wanted keyframes wait for an idle
     # thread ("mapping busy"); with keyframes.take_when_busy the tracker waits for the thread and none is refused.
-    factory = standin_depth_model()
-    calls = {"n": 0}
-
-    def slow(frame):
-        calls["n"] += 1
-        if calls["n"] > 1:
-            time.sleep(0.4)
-        return factory(frame)
-
-    seq = MemorySequence(preset_frames(21, 16, "walk", 10.0))
+    slow, _ = _slow_depth_model(0.4)
     cfg = SLAMConfig()
     cfg = dataclasses.replace(cfg, keyframes=dataclasses.replace(cfg.keyframes, take_when_busy=take))
-    system = CodeSLAM(cfg, slow, parallel=True)
-    run = run_slam(seq, system, seq.frames[0].camera)
+    _, run, _ = _run(True, frames=preset_frames(21, 16, "walk", 10.0), depth_model=slow, config=cfg)
     busy = [r.index for r in run.results if r.keyframe is not None and r.keyframe.reason == "mapping busy"]
     assert all(r.tracking_ok for r in run.results)
     assert (busy == []) if take else (busy != []), busy
