@@ -62,6 +62,14 @@ class TrackerConfig:
     0.142 -> 0.142 m, the generator walk 0.062 -> 0.064 m, its corridor 0.248 -> 0.248 m. 0 switches it off."""
     motion_prior_angular_acceleration_deg: float = 0.0
     """The same for the rotation (degrees per s²; noise per frame this times dt²); 0 leaves the rotation free."""
+    max_rotation_from_prediction_deg: float = 20.0
+    """Tracking fails when the aligned pose's rotation is more than this many degrees from the motion model's
+    prediction and no matched keypoints vouch for it (0 switches the check off). Measured on every second
+    HoloLens frame (docs/results/slam_table.md, session of 2026-11-28, eleventh): frame 168, facing a wall with no
+    keypoint matches, turned 12.4 deg while its alignment, accepted by every other check (overlap 0.37, explained
+    variance 0.60), turned it 54.5 deg; every later frame carried the 42 deg. No frame of the shared sequences
+    turns more than 26 deg in one step (0.2 s), so a change of that size from a constant angular velocity is
+    taken for a lost frame."""
     min_overlap: float = 0.3
     """Tracking fails when fewer than this fraction of the keyframe's pixels land inside the frame."""
     min_inlier_ratio: float = 0.6
@@ -110,6 +118,9 @@ class TrackerConfig:
                               f"got {self.rolling_shutter_readout}")
         if self.motion_model not in MOTION_MODELS:
             raise ConfigError(f"tracker.motion_model must be one of {MOTION_MODELS}, got {self.motion_model!r}")
+        if not self.max_rotation_from_prediction_deg >= 0:
+            raise ConfigError("tracker.max_rotation_from_prediction_deg must be >= 0 (0: off), got "
+                              f"{self.max_rotation_from_prediction_deg}")
         for name in ("min_overlap", "min_inlier_ratio"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"tracker.{name} must lie in [0, 1], got {getattr(self, name)}")

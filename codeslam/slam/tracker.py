@@ -21,6 +21,7 @@ from dataclasses import dataclass, replace
 import torch
 
 from codeslam.geometry.camera import PinholeCamera
+from codeslam.geometry.lie import so3_log
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.solver import PairProblem, coarse_to_fine
@@ -176,6 +177,14 @@ class PhotometricTracker:
         state, cost, valid_px, r, sigma, gray_A, iterations, kp = align(keyframe, code, image, camera, valid, state,
                                                                         layout, terms, levels)
         result = self._checked(state, valid_px, r, sigma, gray_A, cost, iterations)
+        if result.ok and T_kf_prior is not None and cfg.max_rotation_from_prediction_deg > 0:
+            R_pred, R = (T[:3, :3].to(device="cpu", dtype=torch.float64) for T in (T_kf_prior, result.T_kf))
+            turn = math.degrees(float(so3_log(R_pred.T @ R).norm()))
+            if turn > cfg.max_rotation_from_prediction_deg:  # unless the keypoints vouch for it (below)
+                result.ok = False
+                result.reason = result.photometric_reason = (
+                    f"rotation {turn:.1f} deg from the motion model's prediction (more than "
+                    f"{cfg.max_rotation_from_prediction_deg:g})")
         if reprojection is not None and len(reprojection) > 0:  # not the motion prior alone (a frame without matches)
             result.feature_matches = len(reprojection)
             if kp is None:

@@ -351,3 +351,18 @@ def test_a_start_from_the_matches_skips_the_coarse_levels_and_ends_where_all_lev
         skipping.track(kf, code, frames[j].gray, frames[j].camera, T_start, reprojection=term,
                        min_feature_inliers=20, every_level=True)
         assert len(visited) == len(levels)
+
+
+def test_keypoints_vouch_for_a_pose_far_from_the_motion_models_prediction():
+    # The rotation check against the motion model fails a frame only where no matched keypoints agree with its pose.
+    frames, trackers, kf, code = _scene(torch.float32)
+    T_true = se3_inverse(frames[0].pose) @ frames[2].pose
+    T_prior = T_true @ se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(30.0), 0.0], dtype=D))
+    term = _keypoints(frames, 2, torch.float32)
+    alone = trackers["dedicated"].track(kf, code, frames[2].gray, frames[2].camera, torch.eye(4, dtype=D),
+                                        T_kf_prior=T_prior)
+    vouched = trackers["dedicated"].track(kf, code, frames[2].gray, frames[2].camera, torch.eye(4, dtype=D),
+                                          reprojection=term, min_feature_inliers=20, T_kf_prior=T_prior)
+    assert not alone.ok and "motion model" in alone.reason, alone.reason
+    assert vouched.ok and vouched.feature_inliers >= 20, (vouched.reason, vouched.feature_inliers)
+    assert "motion model" in vouched.photometric_reason

@@ -59,6 +59,7 @@ def test_resolved_config_round_trips_through_yaml(tmp_path):
         "window: {window_scale_sigma: -0.1}\n",
         "window: {max_runaway_share: 1.5}\n",
         "tracker: {feature_start_level: -2}\n",
+        "tracker: {max_rotation_from_prediction_deg: -5}\n",
         "features: {retry_agreement: 1.5}\n",
         "tracker: {pyramid_levels: [3, 2], max_iterations: [8, 8], feature_start_level: 1}\n",  # finer than all
         "{unbalanced\n",

@@ -3,6 +3,7 @@ wild pose) on an unrelated or corrupt image."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -112,3 +113,26 @@ def test_the_texture_the_alignment_had_is_reported():
                               torch.eye(4, dtype=D))
     assert res.ok and 0.05 < res.texture < 0.5, res.texture
     assert res_faint.texture == pytest.approx(0.1 * res.texture, rel=0.05), (res_faint.texture, res.texture)
+
+
+def _turned(T: torch.Tensor, deg: float) -> torch.Tensor:
+    """``T`` turned by ``deg`` degrees about the camera's vertical axis."""
+    return T @ se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(deg), 0.0], dtype=D))
+
+
+def test_a_pose_far_from_the_motion_models_prediction_fails_unless_the_check_is_off():
+    # Every second HoloLens frame, frame 168: facing a wall with no keypoint matches, the alignment turned the frame
+    # 54.5 deg where it turned 12.4, and passed every other check. Here the alignment finds the true pose and the
+    # prediction is off by 10 or 30 degrees (the threshold: 20).
+    frames, tracker, kf, code = _setup()
+    T_true = se3_inverse(frames[0].pose) @ frames[1].pose
+    near, far = (tracker.track(kf, code, frames[1].gray, frames[1].camera, torch.eye(4, dtype=D),
+                               T_kf_prior=_turned(T_true, deg)) for deg in (10.0, 30.0))
+    assert near.ok, near.reason
+    assert not far.ok and "from the motion model's prediction" in far.reason, far.reason
+    assert far.photometric_reason == far.reason
+    assert torch.allclose(far.T_kf, near.T_kf)  # the check judges the pose, it does not move it
+    cfg = small_config()
+    off = PhotometricTracker(dataclasses.replace(cfg.tracker, max_rotation_from_prediction_deg=0.0), cfg.window.sfm)
+    res = off.track(kf, code, frames[1].gray, frames[1].camera, torch.eye(4, dtype=D), T_kf_prior=_turned(T_true, 30))
+    assert res.ok, res.reason
