@@ -21,7 +21,6 @@ from dataclasses import dataclass, replace
 import torch
 
 from codeslam.geometry.camera import PinholeCamera
-from codeslam.geometry.lie import so3_log
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.solver import PairProblem, coarse_to_fine
@@ -37,6 +36,7 @@ from codeslam.slam.alignment import (
     real_pixel_pyramid,
 )
 from codeslam.slam.config import TrackerConfig
+from codeslam.slam.features import pose_distance
 from codeslam.slam.poses import project_to_se3
 from codeslam.slam.reprojection import ReprojectionTerm
 
@@ -176,15 +176,7 @@ class PhotometricTracker:
         align = self._align_dedicated if self.solver == "dedicated" else self._align_generic
         state, cost, valid_px, r, sigma, gray_A, iterations, kp = align(keyframe, code, image, camera, valid, state,
                                                                         layout, terms, levels)
-        result = self._checked(state, valid_px, r, sigma, gray_A, cost, iterations)
-        if result.ok and T_kf_prior is not None and cfg.max_rotation_from_prediction_deg > 0:
-            R_pred, R = (T[:3, :3].to(device="cpu", dtype=torch.float64) for T in (T_kf_prior, result.T_kf))
-            turn = math.degrees(float(so3_log(R_pred.T @ R).norm()))
-            if turn > cfg.max_rotation_from_prediction_deg:  # unless the keypoints vouch for it (below)
-                result.ok = False
-                result.reason = result.photometric_reason = (
-                    f"rotation {turn:.1f} deg from the motion model's prediction (more than "
-                    f"{cfg.max_rotation_from_prediction_deg:g})")
+        result = self._checked(state, valid_px, r, sigma, gray_A, cost, iterations, T_kf_prior)
         if reprojection is not None and len(reprojection) > 0:  # not the motion prior alone (a frame without matches)
             result.feature_matches = len(reprojection)
             if kp is None:
@@ -276,10 +268,13 @@ class PhotometricTracker:
                          T_kf_prior.to(dtype=dtype, device=device))
 
     def _checked(self, state: SfMState, valid: torch.Tensor, r: torch.Tensor, sigma: torch.Tensor,
-                 gray_A: torch.Tensor, cost: float, iterations: int) -> TrackResult:
+                 gray_A: torch.Tensor, cost: float, iterations: int,
+                 T_pred: torch.Tensor | None = None) -> TrackResult:
         """The track result with the photometric failure checks applied (non-finite, overlap, inlier ratio,
-        explained variance). At the finest tracked level: ``valid`` (N,) the photometric residuals' mask, ``r``
-        (N,) the residuals, ``sigma`` their noise, ``gray_A`` (N,) the keyframe's intensities."""
+        explained variance, brightness gain, rotation from the motion model's prediction ``T_pred`` when given).
+        At the finest tracked level: ``valid`` (N,) the photometric residuals' mask, ``r`` (N,) the residuals,
+        ``sigma`` their noise, ``gray_A`` (N,) the keyframe's intensities. Matched keypoints may still vouch for
+        a pose that fails them (:meth:`track`)."""
         cfg = self.cfg
         n_valid = int(valid.sum())
         overlap = n_valid / valid.numel()
@@ -307,6 +302,10 @@ class PhotometricTracker:
             reason = f"explained intensity variance {explained:.2f} below {cfg.min_explained_variance:.2f}"
         elif abs(float(affine[0])) > cfg.max_log_gain:
             reason = f"brightness gain {math.exp(float(affine[0])):.2f} outside exp(+-{cfg.max_log_gain:g})"
+        elif (T_pred is not None and cfg.max_rotation_from_prediction_deg > 0
+              and (turn := pose_distance(T_pred.to(T_kf), T_kf)[1]) > cfg.max_rotation_from_prediction_deg):
+            reason = (f"rotation {turn:.1f} deg from the motion model's prediction (more than "
+                      f"{cfg.max_rotation_from_prediction_deg:g})")
         return TrackResult(T_kf=T_kf, affine=affine, ok=not reason, reason=reason, overlap=overlap,
                            inlier_ratio=inlier_ratio, explained=explained, cost=cost, iterations=iterations,
                            photometric_reason=reason, residual=rms, texture=math.sqrt(var_A))
