@@ -374,7 +374,7 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
             dr_dx, dr_dwA, dr_dwB = rolling_shutter_rows(dr_dx, rw.x_c, rw.ray0, rw.depth_A, ev.T_BA, rw.omega_B,
                                                          rw.s_A, rw.s_B)
             J_rs.append(torch.cat([dr_dwA, dr_dwB], dim=-1))
-        J_rel.append(pose_row(dr_dx, x_pose, ev.T_BA))  # Eqs. 7-8 in SE(3) left form, (P, N, 6)
+        J_rel.append(pose_row(dr_dx, x_pose))  # Eqs. 7-8 in SE(3) left form, (P, N, 6)
         s_A.append((dr_dx * dx_dd).sum(-1) * ev.dd_dprox_A)  # Eq. 9 with dD_A/dc_A = dD/dP J_A[u]
     valid = ev.valid
     zero = torch.zeros((), dtype=dtype, device=ev.r.device)
