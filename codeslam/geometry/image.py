@@ -124,15 +124,13 @@ def slant_cosine(depth: torch.Tensor, params: torch.Tensor) -> torch.Tensor:
     threads; the SfM slant weight went 10.1 -> 4.4 ms, about 100 ms of each TUM window solve -> 45."""
     B, _, H, W = depth.shape
     params = params.to(depth).expand(B, 4)
-    K = torch.zeros(B, 3, 3, dtype=depth.dtype, device=depth.device)
-    K[:, 0, 0], K[:, 1, 1], K[:, 0, 2], K[:, 1, 2], K[:, 2, 2] = (
-        params[:, 0], params[:, 1], params[:, 2], params[:, 3], 1.0
-    )
-    xyz = kornia.geometry.depth.depth_to_3d_v2(depth[:, 0], K).permute(0, 3, 1, 2)  # (B, 3, H, W)
-    grad = kornia.filters.spatial_gradient(xyz)  # (B, 3, 2, H, W): d/du, d/dv
-    normals = torch.linalg.cross(grad[:, :, 0], grad[:, :, 1], dim=1)  # (B, 3, H, W), not unit
     grid = pixel_grid(H, W, depth.dtype, depth.device)
     ray = unproject_jac_depth(grid, params[:, None, None]).permute(0, 3, 1, 2)  # (B, 3, H, W), unit z
+    grad = kornia.filters.spatial_gradient(depth * ray)  # (B, 3, 2, H, W): d/du, d/dv of the points D K^-1 u
+    # The cross product by components: torch.linalg.cross over the channel dimension, and kornia's depth_to_3d_v2
+    # for the points, made the whole function 2.3 ms against 1.55 ms (4 x 96 x 128, 2 threads).
+    (xu, yu, zu), (xv, yv, zv) = grad[:, :, 0].unbind(1), grad[:, :, 1].unbind(1)
+    normals = torch.stack([yu * zv - zu * yv, zu * xv - xu * zv, xu * yv - yu * xv], dim=1)  # (B, 3, H, W)
     lengths = ((normals * normals).sum(1, keepdim=True) * (ray * ray).sum(1, keepdim=True)).sqrt()
     cos = (normals * ray).sum(1, keepdim=True).abs() / lengths
     return torch.nan_to_num(cos, nan=0.0)  # no normal: 0 / 0
