@@ -123,7 +123,7 @@ def assemble(
     w, r = terms.w, terms.r  # (P, T, N)
     rs = terms.J_rs is not None
     # (P, T, N, L) dense columns [xi_BA, a, b] (L = 8), then [omega_A, omega_B] with a rolling shutter (L = 14)
-    Jd = torch.cat([terms.J_rel, terms.J_aff] + ([terms.J_rs] if rs else []), dim=-1)
+    Jd = terms.J_local
     L = Jd.shape[-1]
     # (F, N, C) J_A of every frame, a view of the channels-last copy: the pixel rows that the geometric term
     # picks for H_{c_A c_B} are gathered as whole rows (measured at C = 128, 8,000 of 12,288 pixels, one thread:
@@ -206,7 +206,7 @@ def dense_jacobian(terms: PairTerms, pairs: torch.Tensor, poses: torch.Tensor, l
     J = torch.zeros(P, T, N, layout.dim, dtype=terms.r.dtype, device=terms.r.device)
     rs = terms.J_rs is not None
     Q = local_to_absolute(poses.to(terms.r.dtype), pairs, rs)
-    J_loc = torch.cat([terms.J_rel, terms.J_aff] + ([terms.J_rs] if rs else []), dim=-1) @ Q.unsqueeze(1)
+    J_loc = terms.J_local @ Q.unsqueeze(1)
     G = level.jac.reshape(level.num_frames, C, N).transpose(1, 2)  # (F, N, C)
     for p, (a, b) in enumerate(pairs.tolist()):
         for bid, i0, i1 in _local_blocks(a, b, p, rs):
