@@ -169,13 +169,23 @@ def test_marginal_prior_anchors_the_window_after_the_fixed_keyframe_leaves(margi
         assert bool((torch.linalg.eigvalsh(H) > -1e-6 * H.diagonal().max()).all())  # positive semi-definite
     else:
         assert w.prior is None
+    # Where the three keyframes settle unmoved: the reduced problem's own optimum, 1-6 mm from the four
+    # keyframes' (the prior is a linearisation, and the solver stops on a flat cost; which of the two the LM's
+    # stopping rules reach flipped with float32 rounding in the Jacobians, docs/results/slam_table.md, twelfth
+    # session). The gauge move must be undone to that point, not merely to within the stopping noise.
+    before = w.snapshot()
+    w.optimise()
+    settled = [k.T_wc.clone() for k in w.keyframes]
+    w.restore(before)
     gauge = se3_exp(torch.tensor([0.03, -0.02, 0.02, 0.0, 0.02, -0.01], dtype=D))  # move the whole window
     for k, T in zip(w.keyframes, optimum):
         k.T_wc = gauge @ T
     w.optimise()
-    errs = [_pose_err(k.T_wc, T) for k, T in zip(w.keyframes, optimum)]
+    errs = [_pose_err(k.T_wc, T) for k, T in zip(w.keyframes, settled)]
     if marginalise:
-        assert all(t < 0.004 and r < 0.2 for t, r in errs), errs  # back at the optimum
+        assert all(t < 5e-4 and r < 0.01 for t, r in errs), errs  # back where the unmoved window settles
+        near = [_pose_err(T, O) for T, O in zip(settled, optimum)]
+        assert all(t < 0.01 and r < 0.2 for t, r in near), near  # which is near the four keyframes' optimum
         for k, c in zip(w.keyframes, codes):
             assert float((k.code - c).norm()) < 0.1 * float(c.norm()) + 0.05
     else:
