@@ -1,10 +1,11 @@
 """Time of one Gauss-Newton iteration of N-frame SfM: analytic compact Jacobians vs autograd Jacobians.
 
 One iteration = residuals + Jacobians + normal equations + damped Cholesky solve, at the full resolution of the
-canonical camera (128x96), for 2 and 4 frames (master pairs, both directions) and code sizes 32 and 128. The
-autograd baseline differentiates the same residual function with forward-mode autograd over all free variables
-(``codeslam.sfm.autodiff``), then forms J^T W J. Both are timed in the same run; the "GEMM" columns are the time
-of the J^T W J products alone (measured inside the same iterations) as a share of the iteration.
+canonical camera (128x96), for 2 and 4 frames (master pairs, both directions) and code sizes 32, 64 (the SLAM
+window's, ``window.code_directions``) and 128 (the shipped network's). The autograd baseline differentiates the
+same residual function with forward-mode autograd over all free variables (``codeslam.sfm.autodiff``), then forms
+J^T W J. Both are timed in the same run; the "GEMM" columns are the time of the J^T W J products alone (measured
+inside the same iterations) as a share of the iteration.
 
     python benchmarks/bench_sfm_gn.py [--repeats 5] [--device cpu] [--dtype float32] [--chunk 64] [--threads N]
                                       [--geometric-stride S]
@@ -93,7 +94,7 @@ def main() -> None:
     ap.add_argument("--height", type=int, default=96)
     ap.add_argument("--chunk", type=int, default=64, help="JVPs per vmap batch of the autograd Jacobian")
     ap.add_argument("--frames", type=int, nargs="+", default=[2, 4])
-    ap.add_argument("--codes", type=int, nargs="+", default=[32, 128])
+    ap.add_argument("--codes", type=int, nargs="+", default=[32, 64, 128])
     ap.add_argument("--skip-autograd", action="store_true")
     ap.add_argument("--threads", type=int, default=0, help="torch intra-op threads (0: torch's default)")
     ap.add_argument("--geometric-stride", type=int, default=1,
