@@ -9,6 +9,7 @@ from codeslam.errors import ConfigError
 
 GRADIENT_MODES = ("sobel", "interpolant")
 GEOMETRIC_SPACES = ("log_depth", "proximity")
+MASKED_ROWS = ("threshold", "common")
 
 
 @dataclass(frozen=True)
@@ -78,6 +79,18 @@ class SfMConfig:
     default; SfM only (the SLAM window refuses it)."""
     rolling_shutter_sigma: float = 0.05
     """Prior sigma (radians) of each component of a frame's readout rotation omega."""
+    masked_rows: str = "threshold"
+    """How loss (i) prices a masked row (out of view, too close to B's border, behind the camera) and how the solver
+    accepts a step. 'threshold': at the Huber threshold ``rho(k) = k^2 / 2`` and a step accepted when the total cost
+    falls. 'common': at the mean of the pair's valid rows, and a step accepted when the cost over the rows valid before
+    and after it falls (:func:`~codeslam.sfm.residuals.common_cost_change`), so pixels that leave or enter the view
+    judge neither side. The normal equations are the valid rows' either way. The SLAM window and tracker use 'common':
+    at the threshold's price a step that turned pixels out of view was rejected whatever the images said, and on a blank
+    wall the tracker stayed at the motion model's guess 1.1 deg off (generator fast turn, seed 14, frame 92); with
+    'common' the suite's ATE fell on 13 of 16 runs (``docs/results/slam_table.md``, session of 2026-11-29). ``codeslam
+    sfm`` keeps 'threshold': on issue 11's far-range TUM master 60 (neighbours -6..+9, no parallax) 'common' accepts the
+    steps that move the depth after noise and ends 11% worse than the zero code, against 9.8% better; the rejected steps
+    were what held it (masters 100 and 140 end better with 'common')."""
     gradient_mode: str = "sobel"
     """Image gradient at w: 'sobel' (smooth, Kerl et al.) or 'interpolant' (exact slope of the bilinear lookup,
     what autograd through the lookup gives; used to check the Jacobians against autograd)."""
@@ -135,6 +148,8 @@ class SfMConfig:
         if self.geometric_space not in GEOMETRIC_SPACES:
             raise ConfigError(f"SfM config: geometric_space must be one of {GEOMETRIC_SPACES}, "
                               f"got {self.geometric_space!r}")
+        if self.masked_rows not in MASKED_ROWS:
+            raise ConfigError(f"SfM config: masked_rows must be one of {MASKED_ROWS}, got {self.masked_rows!r}")
         if self.gradient_mode not in GRADIENT_MODES:
             raise ConfigError(f"SfM config: gradient_mode must be one of {GRADIENT_MODES}, got {self.gradient_mode!r}")
         if len(self.pyramid_levels) != len(self.max_iterations) or not self.pyramid_levels:

@@ -28,7 +28,14 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, LevelData, build_levels
 from codeslam.sfm.normal_equations import assemble
 from codeslam.sfm.priors import AffinePrior, CodePrior, ReadoutPrior
-from codeslam.sfm.residuals import PairEvaluation, evaluate_pairs, pair_jacobians, robust_weights
+from codeslam.sfm.residuals import (
+    PairEvaluation,
+    common_cost_change,
+    evaluate_pairs,
+    pair_cost,
+    pair_jacobians,
+    robust_weights,
+)
 from codeslam.sfm.scale_prior import DepthScalePrior
 from codeslam.sfm.variables import CODE, RS_DIM, BlockId, LinearPrior, SfMState, VariableLayout
 
@@ -72,8 +79,17 @@ class PairProblem:
     def evaluate(self, state: SfMState) -> tuple[float, PairEvaluation]:
         affine = state.affine if self.cfg.affine_brightness else None
         ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg, rs=state.rs)
-        _, pair_cost = robust_weights(ev)
-        return float(pair_cost.sum() + self._prior_cost(state)), ev
+        _, cost = robust_weights(ev, self.cfg.masked_rows)
+        return float(cost.sum() + self._prior_cost(state)), ev
+
+    def cost_change(self, old: PairEvaluation, new: PairEvaluation, old_cost: float, new_cost: float) -> float:
+        """What a step changed the cost by, from two evaluations of this problem and their costs: ``new_cost -
+        old_cost``, or with ``masked_rows: common`` the pair residuals' change over the rows valid in both
+        (:func:`~codeslam.sfm.residuals.common_cost_change`) plus the priors' change."""
+        if self.cfg.masked_rows == "threshold":
+            return new_cost - old_cost
+        priors = (new_cost - float(pair_cost(new).sum())) - (old_cost - float(pair_cost(old).sum()))
+        return priors + float(common_cost_change(old.row_cost, old.valid, new.row_cost, new.valid))
 
     def linearize(
         self, state: SfMState, cache: PairEvaluation, layout: VariableLayout, profile: dict | None = None
@@ -89,7 +105,9 @@ class PairProblem:
 @dataclass
 class LMReport:
     """What one Levenberg-Marquardt run did. costs: the initial cost and the cost after every accepted step
-    (strictly decreasing); step_ms: wall time of every iteration (accepted or not)."""
+    (each accepted step lowered it, or with ``masked_rows: common`` lowered it over the rows valid before and
+    after, ``problem.cost_change``, so the cost itself may rise a little where a step brings rows into view);
+    step_ms: wall time of every iteration (accepted or not)."""
 
     costs: list[float] = field(default_factory=list)
     iterations: int = 0
@@ -117,14 +135,16 @@ def levenberg_marquardt(
 ) -> tuple[SfMState, LMReport]:
     """Minimise ``problem``'s cost over ``layout``'s free blocks from ``state``.
 
-    Each iteration solves the damped normal equations; a step is accepted only if the new cost is finite and
-    lower, then the damping shrinks; otherwise (cost increase, NaN/inf, non-PD system) the damping grows and the
-    state is kept. Stops after ``max_iterations``, when an accepted step lowers the cost by less than
-    ``relative_cost_tolerance`` or is shorter than ``step_tolerance``, when the quadratic model itself predicts
-    less than that relative decrease (converged as far as the linearisation can tell; this also ends the run of
-    rejections that approximate image gradients cause near the optimum), at a rejected step that promised less
-    than ``rejection_stop_decrease`` of the cost, when the damping exceeds ``max_damping``, or when
-    ``interrupted()`` turns true before an iteration (reason 'interrupted'; the state is
+    ``problem`` gives ``evaluate(state) -> (cost, cache)``, ``linearize(state, cache, layout, profile) -> (H,
+    g)`` and ``cost_change(old_cache, new_cache, old_cost, new_cost)`` (the change a step is judged on,
+    :attr:`SfMConfig.masked_rows`). Each iteration solves the damped normal equations; a step is accepted only if
+    the new cost is finite and its change negative, then the damping shrinks; otherwise (cost increase, NaN/inf,
+    non-PD system) the damping grows and the state is kept. Stops after ``max_iterations``, when an accepted step
+    lowers the cost by less than ``relative_cost_tolerance`` or is shorter than ``step_tolerance``, when the
+    quadratic model itself predicts less than that relative decrease (converged as far as the linearisation can
+    tell; this also ends the run of rejections that approximate image gradients cause near the optimum), at a
+    rejected step that promised less than ``rejection_stop_decrease`` of the cost, when the damping exceeds
+    ``max_damping``, or when ``interrupted()`` turns true before an iteration (reason 'interrupted'; the state is
     the last accepted one, as after any stop).
     """
     report = LMReport(damping=cfg.initial_damping)
@@ -160,11 +180,12 @@ def levenberg_marquardt(
                 break
             new_state = state.retract(layout, delta)
             new_cost, new_cache = problem.evaluate(new_state)
-            if math.isfinite(new_cost) and new_cost < cost:
-                accepted = True
+            if math.isfinite(new_cost):
+                change = problem.cost_change(cache, new_cache, cost, new_cost)
+                accepted = change < 0
         report.iterations += 1
         if accepted:
-            rel = (cost - new_cost) / max(abs(cost), sys.float_info.min)
+            rel = -change / max(abs(cost), sys.float_info.min)
             state, cost, cache = new_state, new_cost, new_cache
             H = g = None
             lam = max(lam * cfg.damping_decrease, MIN_LM_DAMPING)

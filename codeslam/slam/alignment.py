@@ -48,7 +48,13 @@ from codeslam.geometry.proximity import prox_to_depth
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
 from codeslam.sfm.keyframes import Keyframe, build_levels, real_pixels
-from codeslam.sfm.residuals import huber_cost_and_weight, interpolant_gradient, slant_weight
+from codeslam.sfm.residuals import (
+    common_cost_change,
+    huber_cost_and_weight,
+    interpolant_gradient,
+    masked_mean_cost,
+    slant_weight,
+)
 from codeslam.sfm.variables import AFFINE_DIM, POSE, POSE_DIM, BlockId, SfMState, VariableLayout
 from codeslam.slam.reprojection import ReprojectionTerm
 
@@ -185,9 +191,10 @@ class AlignmentEvaluation:
     r: (N,) residuals (0 where masked); valid: (N,) bool; w: (N,) IRLS weights ``slant rho'(s)/s / sigma^2`` (0
     where masked); sigma: () the photometric sigma; R_BA (3, 3), t_BA (3,): the relative pose; x: (3, N) the
     points in B; gray_B: (N,) I_B[v]; grad_B: (2, N) gradient of I_B at v (d/du, d/dv); gain: () exp(a); cost: ()
-    the robust photometric cost (masked rows priced at the Huber threshold, loss (i)); keypoints: what
+    the robust photometric cost (masked rows priced as ``cfg.masked_rows`` says, loss (i)); keypoints: what
     :meth:`KeypointTerm.evaluate` gave at the same pose (None without keypoints); prior_deltas: each pose prior's
-    ``d`` at the same pose (:meth:`PosePrior.delta_of`).
+    ``d`` at the same pose (:meth:`PosePrior.delta_of`); row_cost: (N,) each valid pixel's robust cost (0 where
+    masked), for :func:`~codeslam.sfm.residuals.common_cost_change`.
     """
 
     r: torch.Tensor
@@ -203,6 +210,7 @@ class AlignmentEvaluation:
     cost: torch.Tensor
     keypoints: tuple[torch.Tensor, ...] | None = None
     prior_deltas: list[torch.Tensor] | None = None
+    row_cost: torch.Tensor | None = None
 
 
 def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Tensor, t_BA: torch.Tensor,
@@ -247,8 +255,12 @@ def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Te
     k = torch.full_like(zero, cfg.huber_photometric)
     rho, irls = huber_cost_and_weight(r / sigma, k)  # (iii); masked rows have r = 0, so rho = 0
     w = ref.slant * irls * vf / sigma**2  # (iv), the IRLS weight
-    cost = (ref.slant * rho).sum() + 0.5 * k * k * (N - vf.sum())  # masked rows cost rho(k) (loss (i))
-    return AlignmentEvaluation(r, valid, w, sigma, R_BA, t_BA, x, gray_B, grad_B, gain, cost)
+    rows = ref.slant * rho  # masked rows have rho = 0
+    if cfg.masked_rows == "threshold":
+        cost = rows.sum() + 0.5 * k * k * (N - vf.sum())  # masked rows cost rho(k) (loss (i))
+    else:
+        cost = masked_mean_cost(rows.sum(), vf.sum(), N, k)  # masked rows at the valid rows' mean (loss (i))
+    return AlignmentEvaluation(r, valid, w, sigma, R_BA, t_BA, x, gray_B, grad_B, gain, cost, row_cost=rows)
 
 
 def photometric_jacobian(x: torch.Tensor, grad_B: torch.Tensor, gray_B: torch.Tensor, gain: torch.Tensor,
@@ -460,6 +472,16 @@ class TrackingProblem:
         c = float(cost)
         self._evaluated.append((state, c, ev))
         return c, ev
+
+    def cost_change(self, old: AlignmentEvaluation, new: AlignmentEvaluation, old_cost: float,
+                    new_cost: float) -> float:
+        """What a step changed the cost by (:meth:`PairProblem.cost_change`): ``new_cost - old_cost``, or with
+        ``masked_rows: common`` the photometric residuals' change over the pixels valid in both
+        (:func:`~codeslam.sfm.residuals.common_cost_change`) plus the other terms' change."""
+        if self.cfg.masked_rows == "threshold":
+            return new_cost - old_cost
+        others = (new_cost - float(new.cost)) - (old_cost - float(old.cost))
+        return others + float(common_cost_change(old.row_cost, old.valid, new.row_cost, new.valid))
 
     def evaluation(self, state: TrackingState) -> tuple[float, AlignmentEvaluation]:
         """The cost and evaluation at ``state`` (one this problem evaluated, e.g. the solver's result, reused)."""

@@ -305,8 +305,10 @@ def _default_window_sfm() -> SfMConfig:
     # generator walk with the stand-in depth 0.038-0.059 -> 0.083 m, the HoloLens walk with it 0.41-0.49 ->
     # 0.39 m). At 1e-3 (10.1 iterations on TUM) the window test's gauge move left the codes short of the optimum.
     # The tracker's alignment takes these solver settings too (TUM: 4.98 -> 5.14 iterations per frame).
+    # masked_rows 'common': loss (i) at the valid rows' mean, steps judged over the rows both states see
+    # (SfMConfig.masked_rows; the tracker's blank-wall turns, session of 2026-11-29).
     return SfMConfig(pyramid_levels=(2, 1, 0), max_iterations=(8, 6, 5), sigma_geometric=0.25,
-                     rejection_stop_decrease=3e-4)
+                     rejection_stop_decrease=3e-4, masked_rows="common")
 
 
 @dataclass(frozen=True)

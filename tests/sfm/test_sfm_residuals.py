@@ -3,17 +3,20 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import pytest
 import torch
 from sfm_scene import look_pose, make_frames
 
 from codeslam.geometry.image import bilinear_sample, image_gradients
+from codeslam.geometry.lie import se3_exp
 from codeslam.sfm.autodiff import autodiff_jacobian, bilinear_sample_gather
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import build_levels
 from codeslam.sfm.normal_equations import dense_jacobian
 from codeslam.sfm.residuals import (
+    common_cost_change,
     evaluate_pairs,
     huber_cost_and_weight,
     interpolant_gradient,
@@ -218,9 +221,39 @@ def test_masks_zero_invalid_rows_and_price_them_at_the_huber_threshold(problem):
     for t in (terms.r, terms.w, terms.J_rel, terms.J_aff, terms.s_A, terms.s_B):
         assert torch.isfinite(t).all()
         assert t[0].abs().max() == 0
-    w, cost = robust_weights(ev)
     n_rows = ev.r[0].numel()
-    torch.testing.assert_close(cost[0], torch.tensor(0.5 * 1.345**2 * n_rows, dtype=D))
+    for masked_rows in ("threshold", "common"):  # a pair that sees nothing: the threshold's price either way
+        w, cost = robust_weights(ev, masked_rows)
+        torch.testing.assert_close(cost[0], torch.tensor(0.5 * 1.345**2 * n_rows, dtype=D))
+
+
+def test_masked_rows_are_priced_at_the_valid_rows_mean_and_steps_compared_over_common_rows(problem):
+    # masked_rows 'common' (the SLAM window's and tracker's): a turn that moves pixels out of view neither pays
+    # nor gains for them: the cost is N times the valid rows' mean, and the change between two evaluations is
+    # summed over the rows valid in both.
+    level, state = problem
+    cfg = SfMConfig(masked_rows="common")
+    evs = []
+    for deg in (0.0, 6.0):
+        st = state.clone()
+        st.poses[1] = se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(deg), 0.0], dtype=D)) @ state.poses[1]
+        ev = evaluate_pairs(level, PAIRS, st.poses, st.codes, st.affine, cfg)
+        _, cost = robust_weights(ev, cfg.masked_rows)
+        rows, valid = ev.row_cost, ev.valid
+        n, N = valid.sum(dim=2), valid.shape[2]
+        assert (n > 0).all() and (n < N).any()  # every pair sees something, some not everything
+        assert torch.equal(rows[~valid], torch.zeros_like(rows[~valid]))
+        torch.testing.assert_close(cost, (rows.sum(dim=2) * N / n).sum(dim=1))
+        evs.append(ev)
+    a, b = evs
+    assert (a.valid != b.valid).any()  # the turn moved pixels in or out of view
+    both = a.valid & b.valid
+    expected = (b.row_cost[both] - a.row_cost[both]).sum()
+    torch.testing.assert_close(common_cost_change(a.row_cost, a.valid, b.row_cost, b.valid), expected)
+    # rows valid in only one evaluation change nothing, whatever their cost
+    b_rows = b.row_cost.clone()
+    b_rows[b.valid & ~a.valid] += 100.0
+    torch.testing.assert_close(common_cost_change(a.row_cost, a.valid, b_rows, b.valid), expected)
 
 
 def test_slant_weight_is_one_fronto_parallel_and_follows_the_normal_angle():

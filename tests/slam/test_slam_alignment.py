@@ -63,8 +63,9 @@ def _keypoints(frames, j, dtype=D, every=37, noise=1.0, seed=0):
     return ReprojectionTerm(0, 1, xyz.to(dtype), uv_b.to(dtype), torch.full((len(d),), 1.5, dtype=dtype), cam)
 
 
-def _level_problem(lvl=1, gradient_mode="interpolant", with_keypoints=True):
-    """One level of the tracking problem of frame 2 at a pose and brightness off the optimum (float64)."""
+def _level_problem(lvl=1, gradient_mode="interpolant", with_keypoints=True, masked_rows=None):
+    """One level of the tracking problem of frame 2 at a pose and brightness off the optimum (float64); the
+    tracker's ``masked_rows`` unless given."""
     frames, trackers, kf, code = _scene(D, gradient_mode)
     tracker = trackers["dedicated"]
     ref = tracker.reference(kf, code).levels[lvl]
@@ -73,7 +74,8 @@ def _level_problem(lvl=1, gradient_mode="interpolant", with_keypoints=True):
     T_kf = se3_exp(torch.tensor([0.004, -0.003, 0.002, 0.003, -0.004, 0.002], dtype=D)) @ T_true
     state = TrackingState(T_kf, torch.tensor([0.05, -0.02], dtype=D))
     kp = KeypointTerm(_keypoints(frames, 2), D, torch.device("cpu")) if with_keypoints else None
-    return TrackingProblem(ref, frame, tracker.sfm_cfg, kp), state
+    cfg = tracker.sfm_cfg if masked_rows is None else replace(tracker.sfm_cfg, masked_rows=masked_rows)
+    return TrackingProblem(ref, frame, cfg, kp), state
 
 
 def _relative(T_kf):
@@ -130,9 +132,13 @@ def test_keypoint_inliers_are_the_reprojection_terms_own():
         assert torch.equal(ours, term.inliers(state.to_sfm(), threshold))
 
 
+@pytest.mark.parametrize("masked_rows", ["threshold", "common"])
 @pytest.mark.parametrize("with_keypoints", [False, True])
-def test_normal_equations_are_the_dense_irls_system_and_the_cost_gradient(with_keypoints):
-    problem, state = _level_problem(with_keypoints=with_keypoints)
+def test_normal_equations_are_the_dense_irls_system_and_the_cost_gradient(with_keypoints, masked_rows):
+    # 'threshold': the normal equations are the robust cost's. 'common' (the SLAM default): the cost prices the
+    # masked rows at the valid rows' mean, N / n times their sum; the steps descend that sum (what the solver
+    # judges them on, over the rows valid before and after: TrackingProblem.cost_change).
+    problem, state = _level_problem(with_keypoints=with_keypoints, masked_rows=masked_rows)
     cost, ev = problem.evaluate(state)
     H, g = problem.linearize(state, ev, LAYOUT)
     sig = torch.tensor(problem.cfg.affine_prior_sigma, dtype=D)
@@ -142,18 +148,23 @@ def test_normal_equations_are_the_dense_irls_system_and_the_cost_gradient(with_k
         R_BA, t_BA = _relative(T_kf)
         affine = state.affine + theta[6:]
         e = photometric_residuals(problem.ref, problem.frame, R_BA, t_BA, affine, problem.cfg)
-        total = e.cost + 0.5 * (affine / sig).square().sum()
+        others = 0.5 * (affine / sig).square().sum()
         r = [e.r]
         if problem.keypoints is not None:
             c, r_k, _, _ = problem.keypoints.evaluate(R_BA, t_BA)
-            total, r = total + c, [*r, r_k.reshape(-1)]
-        return total, torch.cat(r)
+            others, r = others + c, [*r, r_k.reshape(-1)]
+        descended = e.cost if masked_rows == "threshold" else e.row_cost.sum()
+        return descended + others, torch.cat(r), e.cost + others
 
     theta = torch.zeros(8, dtype=D, requires_grad=True)
-    total, _ = pieces(theta)
-    (grad,) = torch.autograd.grad(total, theta)
+    descended, _, total = pieces(theta)
+    (grad,) = torch.autograd.grad(descended, theta)
     assert abs(float(total.detach()) - cost) <= 1e-12 * cost
-    torch.testing.assert_close(g, grad, atol=1e-8, rtol=1e-8)  # IRLS: J^T W r is the robust cost's gradient
+    if masked_rows == "common":
+        n, N = int(ev.valid.sum()), ev.valid.numel()
+        assert 0 < n < N  # some rows masked: the two costs differ
+        assert float(descended) < float(total) - 1e-6 * float(total)
+    torch.testing.assert_close(g, grad, atol=1e-8, rtol=1e-8)  # IRLS: J^T W r is the descended cost's gradient
 
     J = torch.autograd.functional.jacobian(lambda t: pieces(t)[1], torch.zeros(8, dtype=D))  # (rows, 8)
     w = [ev.w]

@@ -48,6 +48,9 @@ class _Quadratic:
             p.add_to(H, g, layout, state)
         return H, g
 
+    def cost_change(self, old, new, old_cost, new_cost):
+        return new_cost - old_cost
+
 
 def test_schur_prior_is_the_exact_marginal_of_a_linear_gaussian_problem():
     """Full cost f_m(x_m, x_r) + f_r(x_r): marginalising x_m out of f_m alone and minimising the prior plus f_r
@@ -275,4 +278,7 @@ def test_the_leaving_keyframe_takes_its_velocity_triple_into_the_marginal_prior_
     torch.testing.assert_close(db[idx], J.T @ r, atol=1e-6, rtol=1e-5)
     rest = torch.ones(dH.shape[0], dtype=torch.bool)
     rest[idx] = False
-    assert float(dH[rest].abs().max()) < 1e-6 and float(db[rest].abs().max()) < 1e-6
+    # b's other entries agree to rounding: the Schur complement carries |b| (here up to about 1e3) through
+    # H_mm^-1 (|H| up to about 2e7), float64
+    b_scale = max(1.0, float(priors[0].b.abs().max()))
+    assert float(dH[rest].abs().max()) < 1e-6 and float(db[rest].abs().max()) < 1e-8 * b_scale
