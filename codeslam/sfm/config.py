@@ -82,15 +82,16 @@ class SfMConfig:
     masked_rows: str = "threshold"
     """How loss (i) prices a masked row (out of view, too close to B's border, behind the camera) and how the solver
     accepts a step. 'threshold': at the Huber threshold ``rho(k) = k^2 / 2`` and a step accepted when the total cost
-    falls. 'common': at the mean of the pair's valid rows, and a step accepted when the cost over the rows valid before
-    and after it falls (:func:`~codeslam.sfm.residuals.common_cost_change`), so pixels that leave or enter the view
-    judge neither side. The normal equations are the valid rows' either way. The SLAM window and tracker use 'common':
-    at the threshold's price a step that turned pixels out of view was rejected whatever the images said, and on a blank
-    wall the tracker stayed at the motion model's guess 1.1 deg off (generator fast turn, seed 14, frame 92); with
-    'common' the suite's ATE fell on 13 of 16 runs (``docs/results/slam_table.md``, session of 2026-11-29). ``codeslam
-    sfm`` keeps 'threshold': on issue 11's far-range TUM master 60 (neighbours -6..+9, no parallax) 'common' accepts the
-    steps that move the depth after noise and ends 11% worse than the zero code, against 9.8% better; the rejected steps
-    were what held it (masters 100 and 140 end better with 'common')."""
+    falls. 'common': at the mean of the pair's valid rows, and a step accepted when the cost over the rows valid
+    before and after it falls (:func:`~codeslam.sfm.residuals.common_cost_change`), so pixels that leave or enter
+    the view judge neither side. The normal equations are the valid rows' either way. The SLAM window and tracker
+    use 'common': at the threshold's price a step that turned pixels out of view was rejected whatever the images
+    said, and on a blank wall the tracker stayed at the motion model's guess 1.1 deg off (generator fast turn, seed
+    14, frame 92); with 'common' the suite's ATE fell on 13 of 16 runs, 11 with the window's 3e-4 accepted-step stop
+    that came with it (``docs/results/slam_table.md``, session of 2026-11-29). ``codeslam sfm`` keeps 'threshold':
+    on issue 11's far-range TUM master 60 (neighbours -6..+9, no parallax) 'common' accepts the steps that move the
+    depth after noise and ends 11% worse than the zero code, against 9.8% better; the rejected steps were what held
+    it (masters 100 and 140 end better with 'common')."""
     gradient_mode: str = "sobel"
     """Image gradient at w: 'sobel' (smooth, Kerl et al.) or 'interpolant' (exact slope of the bilinear lookup,
     what autograd through the lookup gives; used to check the Jacobians against autograd)."""
