@@ -57,7 +57,8 @@ class PairEvaluation:
     gain (P, 1) = exp(a), gray_B (P, N) = I_B[v], grad_gray_B / grad_prox_B (P, N, 2) (None unless requested),
     dgeo_dz (P, N) = d f(x_z) / d x_z, dgeo_dprox_B (P, N) = d f(D_B(P_B)) / d P_B at v (f: the geometric
     residual's space), v (P, N, 2). row_cost (P, T, N): each valid row's robust cost (0 where masked), set by
-    :func:`robust_weights`, which :func:`common_cost_change` compares between two evaluations.
+    :func:`robust_weights`, which :func:`common_cost_change` compares between two evaluations; cost (P,): the
+    pairs' robust cost as the solver priced it (:meth:`~codeslam.sfm.solver.PairProblem.evaluate`).
     """
 
     types: tuple[str, ...]
@@ -79,6 +80,7 @@ class PairEvaluation:
     v: torch.Tensor
     rs: RollingShutterWarp | None = None
     row_cost: torch.Tensor | None = None
+    cost: torch.Tensor | None = None
 
 
 @dataclass
@@ -408,6 +410,18 @@ def common_cost_change(old_rows: torch.Tensor, old_valid: torch.Tensor, new_rows
     pixels that leave or enter the view move neither side."""
     both = old_valid & new_valid
     return torch.where(both, new_rows - old_rows, torch.zeros((), dtype=new_rows.dtype, device=new_rows.device)).sum()
+
+
+def step_cost_change(masked_rows: str, old, new, old_cost: float, new_cost: float) -> float:
+    """What a step changed a problem's cost by, the change Levenberg-Marquardt accepts a step on, from the
+    evaluations before and after it (``old``, ``new``: each with the data term's ``cost``, its ``row_cost`` and
+    ``valid``, as :class:`PairEvaluation` and the tracker's alignment evaluation carry them) and the problem's
+    whole costs: ``new_cost - old_cost`` with ``masked_rows`` 'threshold'; with 'common' the data term's change
+    over the rows valid in both (:func:`common_cost_change`) plus the other terms' (priors') change."""
+    if masked_rows == "threshold":
+        return new_cost - old_cost
+    others = (new_cost - float(new.cost.sum())) - (old_cost - float(old.cost.sum()))
+    return others + float(common_cost_change(old.row_cost, old.valid, new.row_cost, new.valid))
 
 
 def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, with_code_b: bool = True) -> PairTerms:

@@ -28,14 +28,7 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, LevelData, build_levels
 from codeslam.sfm.normal_equations import assemble
 from codeslam.sfm.priors import AffinePrior, CodePrior, ReadoutPrior
-from codeslam.sfm.residuals import (
-    PairEvaluation,
-    common_cost_change,
-    evaluate_pairs,
-    pair_cost,
-    pair_jacobians,
-    robust_weights,
-)
+from codeslam.sfm.residuals import PairEvaluation, evaluate_pairs, pair_jacobians, robust_weights, step_cost_change
 from codeslam.sfm.scale_prior import DepthScalePrior
 from codeslam.sfm.variables import CODE, RS_DIM, BlockId, LinearPrior, SfMState, VariableLayout
 
@@ -79,17 +72,12 @@ class PairProblem:
     def evaluate(self, state: SfMState) -> tuple[float, PairEvaluation]:
         affine = state.affine if self.cfg.affine_brightness else None
         ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg, rs=state.rs)
-        _, cost = robust_weights(ev, self.cfg.masked_rows)
-        return float(cost.sum() + self._prior_cost(state)), ev
+        _, ev.cost = robust_weights(ev, self.cfg.masked_rows)
+        return float(ev.cost.sum() + self._prior_cost(state)), ev
 
     def cost_change(self, old: PairEvaluation, new: PairEvaluation, old_cost: float, new_cost: float) -> float:
-        """What a step changed the cost by, from two evaluations of this problem and their costs: ``new_cost -
-        old_cost``, or with ``masked_rows: common`` the pair residuals' change over the rows valid in both
-        (:func:`~codeslam.sfm.residuals.common_cost_change`) plus the priors' change."""
-        if self.cfg.masked_rows == "threshold":
-            return new_cost - old_cost
-        priors = (new_cost - float(pair_cost(new).sum())) - (old_cost - float(pair_cost(old).sum()))
-        return priors + float(common_cost_change(old.row_cost, old.valid, new.row_cost, new.valid))
+        """What a step changed the cost by (:func:`~codeslam.sfm.residuals.step_cost_change`)."""
+        return step_cost_change(self.cfg.masked_rows, old, new, old_cost, new_cost)
 
     def linearize(
         self, state: SfMState, cache: PairEvaluation, layout: VariableLayout, profile: dict | None = None

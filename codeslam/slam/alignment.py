@@ -49,11 +49,11 @@ from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
 from codeslam.sfm.keyframes import Keyframe, build_levels, real_pixels
 from codeslam.sfm.residuals import (
-    common_cost_change,
     huber_cost_and_weight,
     interpolant_gradient,
     masked_mean_cost,
     slant_weight,
+    step_cost_change,
 )
 from codeslam.sfm.variables import AFFINE_DIM, POSE, POSE_DIM, BlockId, SfMState, VariableLayout
 from codeslam.slam.reprojection import ReprojectionTerm
@@ -194,7 +194,7 @@ class AlignmentEvaluation:
     the robust photometric cost (masked rows priced as ``cfg.masked_rows`` says, loss (i)); keypoints: what
     :meth:`KeypointTerm.evaluate` gave at the same pose (None without keypoints); prior_deltas: each pose prior's
     ``d`` at the same pose (:meth:`PosePrior.delta_of`); row_cost: (N,) each valid pixel's robust cost (0 where
-    masked), for :func:`~codeslam.sfm.residuals.common_cost_change`.
+    masked), for :func:`~codeslam.sfm.residuals.step_cost_change`.
     """
 
     r: torch.Tensor
@@ -475,13 +475,8 @@ class TrackingProblem:
 
     def cost_change(self, old: AlignmentEvaluation, new: AlignmentEvaluation, old_cost: float,
                     new_cost: float) -> float:
-        """What a step changed the cost by (:meth:`PairProblem.cost_change`): ``new_cost - old_cost``, or with
-        ``masked_rows: common`` the photometric residuals' change over the pixels valid in both
-        (:func:`~codeslam.sfm.residuals.common_cost_change`) plus the other terms' change."""
-        if self.cfg.masked_rows == "threshold":
-            return new_cost - old_cost
-        others = (new_cost - float(new.cost)) - (old_cost - float(old.cost))
-        return others + float(common_cost_change(old.row_cost, old.valid, new.row_cost, new.valid))
+        """What a step changed the cost by (:func:`~codeslam.sfm.residuals.step_cost_change`)."""
+        return step_cost_change(self.cfg.masked_rows, old, new, old_cost, new_cost)
 
     def evaluation(self, state: TrackingState) -> tuple[float, AlignmentEvaluation]:
         """The cost and evaluation at ``state`` (one this problem evaluated, e.g. the solver's result, reused)."""
