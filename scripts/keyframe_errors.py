@@ -19,7 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from codeslam.data.trajectory import read_tum
-from codeslam.eval.metrics import align_poses, match_trajectories, relative_motion_errors, rotation_angle
+from codeslam.eval.metrics import (
+    align_poses,
+    match_trajectories,
+    relative_motion_errors,
+    relative_poses,
+    rotation_angle,
+)
 
 
 def sim3_ate(est: np.ndarray, ref: np.ndarray) -> float:
@@ -46,8 +52,8 @@ def main() -> None:
     if len(kf) < 2:
         return
     E = relative_motion_errors(P, Q, kf[:-1], kf[1:])  # each step's error, in its first keyframe's camera
-    t_true = np.array([np.linalg.norm((np.linalg.inv(Q[a]) @ Q[b])[:3, 3]) for a, b in zip(kf[:-1], kf[1:])])
-    t_est = np.array([np.linalg.norm((np.linalg.inv(P[a]) @ P[b])[:3, 3]) for a, b in zip(kf[:-1], kf[1:])])
+    t_true = np.linalg.norm(relative_poses(Q, kf[:-1], kf[1:])[:, :3, 3], axis=1)
+    t_est = np.linalg.norm(relative_poses(P, kf[:-1], kf[1:])[:, :3, 3], axis=1)
     t_err = np.linalg.norm(E[:, :3, 3], axis=1)
     rot = np.degrees(rotation_angle(E[:, :3, :3]))
     print(f"keyframe steps: true translation median {1e3 * np.median(t_true):.1f} mm "
