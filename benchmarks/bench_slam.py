@@ -8,6 +8,9 @@ memory, by default the walk at 10 frames/s) and each mapping mode it runs the wh
 * per-frame stages (read, resample, features, track) and per-keyframe stages (decode, marginalise, window): median
   and 90th percentile in ms ("read" is the time the loop waited for a frame: frames are read one ahead on a
   thread of their own, :func:`codeslam.slam.pipeline.read_ahead`);
+* each frame's time in ``CodeSLAM.process`` on the tracking thread, wall and that thread's CPU time (median and
+  90th percentile ms; in parallel mode the difference is waiting: for an urgent keyframe, the GIL or a core), and
+  the mapping steps' wall and CPU time in all (s);
 * map updates (window solves) per second of wall time, keyframes, failed frames;
 * peak resident memory (MB);
 * ATE Sim(3) and the orientation error after the best rotation alignment, so a speed-up is read beside what it
@@ -80,6 +83,7 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
         factory, camera = standin_depth_model(), canonical_camera()
     config = load_config(None if args["config"] == "default" else args["config"])
     system = CodeSLAM(config, factory, parallel=(mode == "parallel"))
+    tracker, mapping = _thread_clock(system)
     t0 = time.perf_counter()
     run = run_slam(seq, system, camera, list(range(n)))
     wall = time.perf_counter() - t0
@@ -97,7 +101,32 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
         "updates_per_s": system.mapper.updates / wall, "failed": sum(not r.tracking_ok for r in run.results),
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "stages": stages,
         "ate_sim3": ev.get("ate_sim3_rmse"), "rot_deg": ev.get("rot_aligned_rmse_deg"),
+        "frame_wall": (float(np.median(tracker["wall"])), float(np.percentile(tracker["wall"], 90))),
+        "frame_cpu": (float(np.median(tracker["cpu"])), float(np.percentile(tracker["cpu"], 90))),
+        "mapping_wall_s": sum(mapping["wall"]) / 1e3, "mapping_cpu_s": sum(mapping["cpu"]) / 1e3,
     })
+
+
+def _thread_clock(system) -> tuple[dict, dict]:
+    """Wall and calling-thread CPU time (ms) of every ``system.process`` (the tracking thread's frame) and every
+    mapping step (the mapping thread's, in parallel mode), by wrapping the two on this instance: in parallel mode a
+    frame's wall time beyond its CPU time is waiting, for an urgent keyframe, the GIL or a core. The CPU time
+    counts the calling thread only (not the extra OpenMP workers of a step on more than one thread)."""
+    tracker, mapping = {"wall": [], "cpu": []}, {"wall": [], "cpu": []}
+
+    def clocked(fn, into):
+        def call(*args, **kwargs):
+            w0, c0 = time.perf_counter(), time.thread_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                into["wall"].append(1e3 * (time.perf_counter() - w0))
+                into["cpu"].append(1e3 * (time.thread_time() - c0))
+        return call
+
+    system.process = clocked(system.process, tracker)
+    system.mapper._step = clocked(system.mapper._step, mapping)
+    return tracker, mapping
 
 
 def _run_or_report(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
@@ -186,6 +215,10 @@ def main() -> None:
     for st in PER_FRAME + PER_KEYFRAME:
         vals = [r["stages"][st] for r in table.values()]
         print(f"{st + ' ms med/p90':24s}" + "".join(f"{f'{m:.1f} / {p:.1f}':>{w}s}" for m, p in vals))
+    for label, key in (("frame wall ms med/p90", "frame_wall"), ("frame CPU ms med/p90", "frame_cpu")):
+        print(f"{label:24s}" + "".join(f"{f'{m:.1f} / {p:.1f}':>{w}s}" for m, p in (r[key] for r in table.values())))
+    mapping = ["{:.1f} / {:.1f}".format(r["mapping_wall_s"], r["mapping_cpu_s"]) for r in table.values()]
+    print(f"{'mapping wall / CPU s':24s}" + "".join(f"{v:>{w}s}" for v in mapping))
     tags = [""] if len(a.config) == 1 else [f" {Path(c).stem}" for c in a.config]
     for _, name in specs:
         for tag in tags:
