@@ -1,0 +1,51 @@
+"""``scripts/depth_prior_eval.py``'s statistics (issue 13's prior table) on depths with known errors: the ratio to
+the best constant, the median depth ratio, the shape error after each frame's scale and the spread and jump of
+the per-frame scales."""
+
+import importlib.util
+import math
+from pathlib import Path
+
+import torch
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "depth_prior_eval.py"
+
+
+def _prior_stats():
+    spec = importlib.util.spec_from_file_location("depth_prior_eval", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.PriorStats
+
+
+def test_per_frame_scales_give_spread_and_jump_and_no_shape_error():
+    a = 1.5
+    gen = torch.Generator().manual_seed(0)
+    depth = 0.5 + 3.0 * torch.rand(4, 12, 16, generator=gen)  # (frames, H, W) metres
+    depth[:, 0, :3] = 0.0  # invalid pixels are ignored
+    scales = torch.tensor([0.5, 1.0, 2.0, 1.0])
+    pred = depth * scales[:, None, None]
+    stats = _prior_stats()()
+    stats.add(a / (pred[:2] + a), depth[:2], a)  # two batches, in order: the jump runs across them
+    stats.add(a / (pred[2:] + a), depth[2:], a)
+    r = stats.result()
+    logs = torch.log(scales).double()
+    assert math.isclose(r["scale_spread"], float(logs.std()), rel_tol=1e-5)
+    assert math.isclose(r["scale_jump"], float((logs[1:] - logs[:-1]).abs().mean()), rel_tol=1e-5)
+    assert r["si_rmse"] < 1e-6  # each frame exact after its own scale
+    assert r["pixels"] == 4 * (12 * 16 - 3)
+    assert 0.5 <= r["median_depth_ratio"] <= 2.0
+
+
+def test_exact_prediction_and_constant_prediction():
+    a = 1.5
+    depth = torch.linspace(0.5, 4.0, 2 * 8 * 8).reshape(2, 8, 8)
+    stats = _prior_stats()()
+    stats.add(a / (depth + a), depth, a)
+    r = stats.result()
+    assert r["zero_rmse"] < 1e-6 and r["ratio"] < 1e-5 and math.isclose(r["median_depth_ratio"], 1.0, rel_tol=1e-5)
+    assert r["scale_spread"] < 1e-6 and r["scale_jump"] < 1e-6
+    const = _prior_stats()()
+    g = a / (depth + a)
+    const.add(torch.full_like(depth, float(g.double().mean())), depth, a)  # the best single constant
+    assert math.isclose(const.result()["ratio"], 1.0, rel_tol=1e-4)
