@@ -18,20 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from codeslam.data.trajectory import read_tum
-from codeslam.eval.metrics import (
-    align_poses,
-    match_trajectories,
-    relative_motion_errors,
-    relative_poses,
-    rotation_angle,
-)
-
-
-def sim3_ate(est: np.ndarray, ref: np.ndarray) -> float:
-    """RMSE of the positions after the best similarity alignment of ``est`` (N, 4, 4) to ``ref``."""
-    aligned, _ = align_poses(est, ref, "sim3")
-    return float(np.sqrt(((aligned[:, :3, 3] - ref[:, :3, 3]) ** 2).sum(axis=1).mean()))
+from codeslam.data.trajectory import Trajectory, read_tum
+from codeslam.eval.metrics import ate, match_trajectories, relative_motion_errors, relative_poses, rotation_angle
 
 
 def main() -> None:
@@ -47,8 +35,9 @@ def main() -> None:
         rows = list(csv.DictReader(f))  # in processing order, as the trajectory's rows
     is_kf = np.array([rows[i]["is_keyframe"] == "1" if i < len(rows) else False for i in i_est])
     kf = np.nonzero(is_kf)[0]
-    print(f"ATE Sim(3): {sim3_ate(P, Q):.4f} m over {len(P)} frames, {sim3_ate(P[kf], Q[kf]):.4f} m over "
-          f"its {len(kf)} keyframes")
+    keyframes = Trajectory(est.timestamps[i_est[kf]], est.poses[i_est[kf]])
+    print(f"ATE Sim(3): {ate(est, ref, 'sim3').rmse:.4f} m over {len(P)} frames, "
+          f"{ate(keyframes, ref, 'sim3').rmse:.4f} m over its {len(kf)} keyframes")
     if len(kf) < 2:
         return
     E = relative_motion_errors(P, Q, kf[:-1], kf[1:])  # each step's error, in its first keyframe's camera
