@@ -252,6 +252,10 @@ def _print_summary(s: dict, out: Path) -> None:
     rs = s.get("rolling_shutter")
     if isinstance(rs, dict):  # tracker.rolling_shutter_estimate
         rows.append(("rolling shutter", _readout_text(rs)))
+    if "mapping_statistics" in s:
+        from codeslam.report.run import mapping_text
+
+        rows.append(("mapping", mapping_text(str(s.get("mapping", "?")), s["mapping_statistics"])))
     if s.get("trajectory_smoothing_s"):
         from codeslam.report.run import trajectory_text
 

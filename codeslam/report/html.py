@@ -11,7 +11,7 @@ import numpy as np
 
 from codeslam.io import atomic_write
 from codeslam.report import figures as F
-from codeslam.report.run import REPORT_FILE, RunFiles, frame_statuses, load_run, trajectory_text
+from codeslam.report.run import REPORT_FILE, RunFiles, frame_statuses, load_run, mapping_text, trajectory_text
 
 #: Statuses of frames whose tracking failed (the pose is the motion model's prediction).
 FAILED_STATUSES = ("predicted", "failed")
@@ -88,6 +88,8 @@ def run_info_rows(run: RunFiles) -> list[tuple[str, str]]:
         rows.append(("device", str(s["device"])))
     if "settings" in s:
         rows.append(("settings", str(s["settings"])))
+    if isinstance(s.get("mapping_statistics"), dict):
+        rows.append(("mapping", mapping_text(str(s.get("mapping", "?")), s["mapping_statistics"])))
     if s.get("trajectory_smoothing_s"):
         rows.append(("trajectory", trajectory_text(s["trajectory_smoothing_s"])))
     return rows

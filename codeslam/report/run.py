@@ -166,6 +166,20 @@ def frame_statuses(run: RunFiles) -> tuple[np.ndarray, list[str], list[str]]:
     return idx, status, ["" for _ in idx]
 
 
+def mapping_text(mode: str, m: dict) -> str:
+    """The summary's line on the window solves (``result.json``'s ``mapping`` mode and ``mapping_statistics``),
+    with a hint when parallel mapping fell behind the camera (more than half of its solves cut short)."""
+    text = f"{mode}: {m['window_solves']} window solves, median {m['median_iterations']:g} iterations"
+    if m["cut_short"]:
+        text += (f"; {m['cut_short']} cut short by the tracker ({m['cut_before_first_iteration']} before their "
+                 f"first iteration)")
+    if m["refused_busy"]:
+        text += f"; {m['refused_busy']} frames asked for a keyframe while the mapping thread was busy"
+    if mode == "parallel" and 2 * m["cut_short"] > m["window_solves"]:
+        text += "; the mapping fell behind the camera (--sequential solves every window in full)"
+    return text
+
+
 def trajectory_text(smoothing_s: float) -> str:
     """The summary's line on how ``trajectory.txt`` was written (``result.json``'s ``trajectory_smoothing_s``)."""
     return (f"positions smoothed over the whole run (a spline, time scale {smoothing_s:g} s); rotations, keyframes "

@@ -194,6 +194,7 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
         "window_rollbacks": sum(bool(r.window is not None and r.window.rejected) or bool(r.rolled_back)
                                 for r in res),
     }
+    out["mapping_statistics"] = mapping_statistics(res)
     if run.readout is not None:
         out["rolling_shutter"] = run.readout
     out["trajectory_smoothing_s"] = run.trajectory_smoothing
@@ -201,6 +202,25 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
         out.update(evaluation)
     out.update(extra)
     return out
+
+
+def mapping_statistics(results: list[FrameResult]) -> dict:
+    """How the window solves went: how many ran, how many the tracker cut short (parallel mode: an urgent keyframe
+    stops the running solve after its current iteration, ``window.interruptible``) and how many of those before
+    their first iteration, the median iterations per solve, and the frames whose keyframe was refused while the
+    mapping thread was busy (``keyframes.take_when_busy`` off; a frame asks again on the next one). Measured on the
+    HoloLens walk in parallel mode on two cores: 47 of 50 solves cut short, 18 before their first iteration, and
+    0.50-0.69 m against 0.14 m sequential; a user should see that in the summary."""
+    solves = [r.window for r in results if r.window is not None]
+    cut = [w for w in solves if w.interrupted]
+    iterations = sorted(w.iterations for w in solves)
+    return {
+        "window_solves": len(solves),
+        "cut_short": len(cut),
+        "cut_before_first_iteration": sum(w.iterations == 0 for w in cut),
+        "median_iterations": float(np.median(iterations)) if iterations else 0.0,
+        "refused_busy": sum(r.keyframe is not None and r.keyframe.reason == "mapping busy" for r in results),
+    }
 
 
 def failure_kind(reason: str) -> str:

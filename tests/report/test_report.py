@@ -23,7 +23,7 @@ from codeslam.recon.ply import write_ply
 from codeslam.report import build_html, load_run, report_figures, write_report
 from codeslam.report.figures import MAX_MAP_POINTS, panel_keyframes, subsample, view_axes
 from codeslam.report.html import failure_counts
-from codeslam.report.run import frame_statuses
+from codeslam.report.run import frame_statuses, mapping_text
 
 N, H, W = 30, 12, 16
 
@@ -220,3 +220,21 @@ def test_a_folder_that_is_not_a_run_is_a_one_line_error(tmp_path):
     with pytest.raises(DatasetError, match="cannot read"):
         write_report(root)
     assert not (root / "report.html").exists()
+
+
+def test_the_mapping_line_says_when_parallel_mapping_fell_behind(tmp_path):
+    """The summary's and the report's line on the window solves: counts as the run stored them, and the hint to
+    map sequentially only where parallel mapping cut more than half of its solves short."""
+    behind = {"window_solves": 50, "cut_short": 47, "cut_before_first_iteration": 18, "median_iterations": 2.0,
+              "refused_busy": 0}
+    text = mapping_text("parallel", behind)
+    assert "50 window solves" in text and "47 cut short" in text and "18 before their first" in text
+    assert "--sequential" in text
+    assert "--sequential" not in mapping_text("parallel", {**behind, "cut_short": 20})
+    assert mapping_text("sequential", {**behind, "cut_short": 0, "cut_before_first_iteration": 0}) == (
+        "sequential: 50 window solves, median 2 iterations")
+    root = _make_run(tmp_path / "run")
+    s = json.loads((root / "result.json").read_text())
+    (root / "result.json").write_text(json.dumps({**s, "mapping": "parallel", "mapping_statistics": behind}))
+    assert text in build_html(load_run(root))
+    assert "window solves" not in build_html(load_run(_make_run(tmp_path / "old")))  # a run from before it

@@ -14,7 +14,7 @@ from slam_scene import MemorySequence, preset_frames
 from codeslam.eval.slam_run import evaluate_run
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.depth import standin_depth_model
-from codeslam.slam.pipeline import ground_truth, run_slam
+from codeslam.slam.pipeline import ground_truth, run_slam, summarise
 from codeslam.slam.system import CodeSLAM
 
 
@@ -177,3 +177,8 @@ def test_a_keyframe_wanted_while_the_mapping_thread_is_busy_is_refused_or_taken(
     busy = [r.index for r in run.results if r.keyframe is not None and r.keyframe.reason == "mapping busy"]
     assert all(r.tracking_ok for r in run.results)
     assert (busy == []) if take else (busy != []), busy
+    # The run's summary counts them, and every keyframe after the first had its window solve.
+    stats = summarise(run)["mapping_statistics"]
+    assert stats["refused_busy"] == len(busy)
+    assert stats["window_solves"] == len(run.keyframes) - 1 >= 1
+    assert 0 <= stats["cut_before_first_iteration"] <= stats["cut_short"] <= stats["window_solves"]
