@@ -169,7 +169,8 @@ def frame_statuses(run: RunFiles) -> tuple[np.ndarray, list[str], list[str]]:
 def mapping_text(mode: str, m: dict) -> str:
     """The summary's line on the window solves (``result.json``'s ``mapping`` mode and ``mapping_statistics``),
     with a hint when parallel mapping fell behind the camera (more than half of its solves cut short)."""
-    text = f"{mode}: {m['window_solves']} window solves, median {m['median_iterations']:g} iterations"
+    it = m["median_iterations"]
+    text = f"{mode}: {m['window_solves']} window solves, median {it:g} iteration{'' if it == 1 else 's'}"
     if m["cut_short"]:
         text += (f"; {m['cut_short']} cut short by the tracker ({m['cut_before_first_iteration']} before their "
                  f"first iteration)")
