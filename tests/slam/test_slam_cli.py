@@ -70,6 +70,11 @@ def test_slam_cli_writes_a_tum_trajectory_and_a_summary(dataset, tmp_path, capsy
     assert summary["trajectory_smoothing_s"] == 0.05
     assert "positions smoothed over the whole run" in captured.out
     assert "positions smoothed over the whole run" in (out / "report.html").read_text()
+    # the window solves: one per keyframe after the first, none cut short in the (default) sequential mode
+    stats = summary["mapping_statistics"]
+    assert summary["mapping"] == "sequential" and stats["window_solves"] == summary["keyframes"] - 1
+    assert stats["cut_short"] == stats["refused_busy"] == 0 and stats["median_iterations"] >= 1
+    assert f"sequential: {stats['window_solves']} window solves" in captured.out.replace("\n", " ")
 
 
 def test_the_summary_says_how_the_readout_was_chosen():
