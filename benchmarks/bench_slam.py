@@ -11,7 +11,8 @@ memory, by default the walk at 10 frames/s) and each mapping mode it runs the wh
 * each frame's time in ``CodeSLAM.process`` on the tracking thread, wall and that thread's CPU time (median and
   90th percentile ms; in parallel mode the difference is waiting: for an urgent keyframe, the GIL or a core), and
   the mapping steps' wall and CPU time in all (s);
-* map updates (window solves) per second of wall time, keyframes, failed frames;
+* map updates (window solves) per second of wall time, keyframes, failed frames, and the window solves cut short
+  by the tracker (parallel mode; in brackets those cut before their first iteration);
 * peak resident memory (MB);
 * ATE Sim(3) and the orientation error after the best rotation alignment, so a speed-up is read beside what it
   costs;
@@ -63,7 +64,7 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
     from codeslam.cli.common import keep_freed_memory
     from codeslam.eval.slam_run import evaluate_run_if_possible
     from codeslam.slam.config import load_config
-    from codeslam.slam.pipeline import ground_truth, run_slam
+    from codeslam.slam.pipeline import ground_truth, mapping_statistics, run_slam
     from codeslam.slam.system import CodeSLAM
 
     keep_freed_memory()  # as the codeslam command does at its start
@@ -104,6 +105,7 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
         "frame_wall": (float(np.median(tracker["wall"])), float(np.percentile(tracker["wall"], 90))),
         "frame_cpu": (float(np.median(tracker["cpu"])), float(np.percentile(tracker["cpu"], 90))),
         "mapping_wall_s": sum(mapping["wall"]) / 1e3, "mapping_cpu_s": sum(mapping["cpu"]) / 1e3,
+        "solves": mapping_statistics(run.results),
     })
 
 
@@ -219,6 +221,9 @@ def main() -> None:
         print(f"{label:24s}" + "".join(f"{f'{m:.1f} / {p:.1f}':>{w}s}" for m, p in (r[key] for r in table.values())))
     mapping = ["{:.1f} / {:.1f}".format(r["mapping_wall_s"], r["mapping_cpu_s"]) for r in table.values()]
     print(f"{'mapping wall / CPU s':24s}" + "".join(f"{v:>{w}s}" for v in mapping))
+    solves = ["{} / {} ({})".format(r["solves"]["cut_short"], r["solves"]["window_solves"],
+                                    r["solves"]["cut_before_first_iteration"]) for r in table.values()]
+    print(f"{'solves cut / all (at 0)':24s}" + "".join(f"{v:>{w}s}" for v in solves))
     tags = [""] if len(a.config) == 1 else [f" {Path(c).stem}" for c in a.config]
     for _, name in specs:
         for tag in tags:
