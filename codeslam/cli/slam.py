@@ -237,6 +237,8 @@ def _print_summary(s: dict, out: Path) -> None:
     from rich.markup import escape
     from rich.table import Table
 
+    from codeslam.report.run import mapping_text, trajectory_text
+
     table = Table(title=escape(f"codeslam slam -> {out}"), show_header=False)
     table.add_column("key", style="bold")
     table.add_column("value")
@@ -252,13 +254,9 @@ def _print_summary(s: dict, out: Path) -> None:
     rs = s.get("rolling_shutter")
     if isinstance(rs, dict):  # tracker.rolling_shutter_estimate
         rows.append(("rolling shutter", _readout_text(rs)))
-    if "mapping_statistics" in s:
-        from codeslam.report.run import mapping_text
-
-        rows.append(("mapping", mapping_text(str(s.get("mapping", "?")), s["mapping_statistics"])))
+    if (mapping := mapping_text(s)) is not None:
+        rows.append(("mapping", mapping))
     if s.get("trajectory_smoothing_s"):
-        from codeslam.report.run import trajectory_text
-
         rows.append(("trajectory", trajectory_text(s["trajectory_smoothing_s"])))
     if "ate_se3_rmse" in s:
         rows += [

@@ -88,8 +88,8 @@ def run_info_rows(run: RunFiles) -> list[tuple[str, str]]:
         rows.append(("device", str(s["device"])))
     if "settings" in s:
         rows.append(("settings", str(s["settings"])))
-    if isinstance(s.get("mapping_statistics"), dict):
-        rows.append(("mapping", mapping_text(str(s.get("mapping", "?")), s["mapping_statistics"])))
+    if (mapping := mapping_text(s)) is not None:
+        rows.append(("mapping", mapping))
     if s.get("trajectory_smoothing_s"):
         rows.append(("trajectory", trajectory_text(s["trajectory_smoothing_s"])))
     return rows

@@ -166,9 +166,13 @@ def frame_statuses(run: RunFiles) -> tuple[np.ndarray, list[str], list[str]]:
     return idx, status, ["" for _ in idx]
 
 
-def mapping_text(mode: str, m: dict) -> str:
+def mapping_text(summary: dict) -> str | None:
     """The summary's line on the window solves (``result.json``'s ``mapping`` mode and ``mapping_statistics``),
-    with a hint when parallel mapping fell behind the camera (more than half of its solves cut short)."""
+    with a hint when parallel mapping fell behind the camera (more than half of its solves cut short); None for a
+    run written before the statistics were."""
+    m, mode = summary.get("mapping_statistics"), str(summary.get("mapping", "?"))
+    if not isinstance(m, dict):
+        return None
     it = m["median_iterations"]
     text = f"{mode}: {m['window_solves']} window solves, median {it:g} iteration{'' if it == 1 else 's'}"
     if m["cut_short"]:

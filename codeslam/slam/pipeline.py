@@ -193,8 +193,8 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
         "segments": 1 + max(r.segment for r in res),
         "window_rollbacks": sum(bool(r.window is not None and r.window.rejected) or bool(r.rolled_back)
                                 for r in res),
+        "mapping_statistics": mapping_statistics(res),
     }
-    out["mapping_statistics"] = mapping_statistics(res)
     if run.readout is not None:
         out["rolling_shutter"] = run.readout
     out["trajectory_smoothing_s"] = run.trajectory_smoothing
@@ -213,7 +213,7 @@ def mapping_statistics(results: list[FrameResult]) -> dict:
     0.50-0.69 m against 0.14 m sequential; a user should see that in the summary."""
     solves = [r.window for r in results if r.window is not None]
     cut = [w for w in solves if w.interrupted]
-    iterations = sorted(w.iterations for w in solves)
+    iterations = [w.iterations for w in solves]
     return {
         "window_solves": len(solves),
         "cut_short": len(cut),

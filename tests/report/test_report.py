@@ -227,12 +227,15 @@ def test_the_mapping_line_says_when_parallel_mapping_fell_behind(tmp_path):
     map sequentially only where parallel mapping cut more than half of its solves short."""
     behind = {"window_solves": 50, "cut_short": 47, "cut_before_first_iteration": 18, "median_iterations": 2.0,
               "refused_busy": 0}
-    text = mapping_text("parallel", behind)
+    text = mapping_text({"mapping": "parallel", "mapping_statistics": behind})
     assert "50 window solves" in text and "47 cut short" in text and "18 before their first" in text
     assert "--sequential" in text
-    assert "--sequential" not in mapping_text("parallel", {**behind, "cut_short": 20})
-    assert mapping_text("sequential", {**behind, "cut_short": 0, "cut_before_first_iteration": 0}) == (
+    assert "--sequential" not in mapping_text({"mapping": "parallel",
+                                               "mapping_statistics": {**behind, "cut_short": 20}})
+    assert mapping_text({"mapping": "sequential",
+                         "mapping_statistics": {**behind, "cut_short": 0, "cut_before_first_iteration": 0}}) == (
         "sequential: 50 window solves, median 2 iterations")
+    assert mapping_text({"mapping": "sequential"}) is None  # a run from before the statistics
     root = _make_run(tmp_path / "run")
     s = json.loads((root / "result.json").read_text())
     (root / "result.json").write_text(json.dumps({**s, "mapping": "parallel", "mapping_statistics": behind}))
