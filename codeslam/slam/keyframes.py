@@ -13,11 +13,16 @@ import torch
 from codeslam.geometry.lie import so3_log
 from codeslam.slam.config import KeyframeConfig
 
+#: The reason of a keyframe the tracker wanted and did not take because the mapping thread was still busy with the
+#: last one (parallel mode; the run's summary counts these frames).
+MAPPING_BUSY = "mapping busy"
+
 
 @dataclass(frozen=True)
 class KeyframeDecision:
     """Whether to add a keyframe and why. reason: 'baseline', 'rotation', 'overlap', 'features' or '' (no keyframe), or
-    'tracking failed' / 'too soon' when a criterion held but the frame is not eligible. urgent: the keyframe is
+    'tracking failed' / 'too soon' when a criterion held but the frame is not eligible (the system adds
+    :data:`MAPPING_BUSY` and others when it overrides a decision). urgent: the keyframe is
     leaving the view; starving: fewer of its keypoints matched than ``min_feature_inliers``."""
 
     add: bool

@@ -36,6 +36,7 @@ from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.io import atomic_path, atomic_write, write_json
 from codeslam.slam.config import SLAMConfig
+from codeslam.slam.keyframes import MAPPING_BUSY
 from codeslam.slam.system import STATUSES, CodeSLAM, FrameResult
 from codeslam.slam.window import MapKeyframe
 from codeslam.viz import Visualizer
@@ -219,7 +220,7 @@ def mapping_statistics(results: list[FrameResult]) -> dict:
         "cut_short": len(cut),
         "cut_before_first_iteration": sum(w.iterations == 0 for w in cut),
         "median_iterations": float(np.median(iterations)) if iterations else 0.0,
-        "refused_busy": sum(r.keyframe is not None and r.keyframe.reason == "mapping busy" for r in results),
+        "refused_busy": sum(r.keyframe is not None and r.keyframe.reason == MAPPING_BUSY for r in results),
     }
 
 

@@ -52,7 +52,7 @@ from codeslam.sfm.keyframes import Keyframe
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.features import Features, scaled_camera
 from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
-from codeslam.slam.keyframes import KeyframeDecision, decide_keyframe
+from codeslam.slam.keyframes import MAPPING_BUSY, KeyframeDecision, decide_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult, torch_threads
 from codeslam.slam.poses import project_to_se3, spread_correction
 from codeslam.slam.readout import CANDIDATES, ReadoutChoice
@@ -351,7 +351,7 @@ class CodeSLAM:
                 if self.ref.id != ref.id:  # a newer keyframe arrived meanwhile: track against it next frame
                     decision = dataclasses.replace(decision, add=False, reason="keyframe arrived")
             else:
-                decision = dataclasses.replace(decision, add=False, reason="mapping busy")
+                decision = dataclasses.replace(decision, add=False, reason=MAPPING_BUSY)
         kw = dict(track=track, decision=decision, status=status, source=source, rolled_back=rolled_back)
         T_wc = ref.T_wc @ track.T_kf
         choosing = self.readout_choice is not None and not self.readout_choice.final

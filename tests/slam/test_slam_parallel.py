@@ -14,6 +14,7 @@ from slam_scene import MemorySequence, preset_frames
 from codeslam.eval.slam_run import evaluate_run
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.depth import standin_depth_model
+from codeslam.slam.keyframes import MAPPING_BUSY
 from codeslam.slam.pipeline import ground_truth, run_slam, summarise
 from codeslam.slam.system import CodeSLAM
 
@@ -174,7 +175,7 @@ def test_a_keyframe_wanted_while_the_mapping_thread_is_busy_is_refused_or_taken(
     cfg = SLAMConfig()
     cfg = dataclasses.replace(cfg, keyframes=dataclasses.replace(cfg.keyframes, take_when_busy=take))
     _, run, _ = _run(True, frames=preset_frames(21, 16, "walk", 10.0), depth_model=slow, config=cfg)
-    busy = [r.index for r in run.results if r.keyframe is not None and r.keyframe.reason == "mapping busy"]
+    busy = [r.index for r in run.results if r.keyframe is not None and r.keyframe.reason == MAPPING_BUSY]
     assert all(r.tracking_ok for r in run.results)
     assert (busy == []) if take else (busy != []), busy
     # The run's summary counts them, and every keyframe after the first had its window solve.
