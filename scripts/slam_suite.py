@@ -2,11 +2,13 @@
 
 A change that helps one sequence and hurts another is not progress, so a change to tracking or mapping is read on
 all of them at once: the two shared real sequences (the HoloLens walk at every frame and at every second frame, TUM
-fr1/rpy), the generator's motion presets (walk, hand-held, corridor, two fast turns) and five generator sequences
-that no setting was chosen on (seeds 41-45), with the network's depth, and three of them again with the dataset's
-own depth (``--depth-model standin``), which separates the tracker from the network.
+fr1/rpy), the generator's motion presets (walk, hand-held, corridor, two fast turns), five generator sequences
+that no setting was chosen on (seeds 41-45) and six added after the last setting was chosen (seeds 51-56: a 200-frame
+walk, a 300-frame hand-held, a noisy corridor, a walk at 30 frames/s, a fast turn at 10 frames/s, a walk towards a
+blank wall), with the network's depth, and four of them again with the dataset's own depth (``--depth-model
+standin``), which separates the tracker from the network.
 
-The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 25 minutes on one
+The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 40 minutes on one
 core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DATA --out OUT/NAME -q`` plus the
 ``--`` arguments (``--threads 1`` by default, which makes the runs repeat to the byte and lets two share two
 cores). The table reads each run's ``result.json``:
@@ -66,6 +68,13 @@ SEQUENCES = {s.name: s for s in (
     Sequence("walk43", 150, "walk", 10, 43, ("--noise", "0.01")),
     Sequence("corr44", 150, "corridor", 10, 44),
     Sequence("ft45", 150, "fast-turn", 30, 45),
+    # seeds 51-56: added after the last setting was chosen (2026-11-29, seventeenth session), never tuned on
+    Sequence("walk51", 200, "walk", 10, 51),
+    Sequence("hh52", 300, "handheld", 30, 52, ("--noise", "0.01", "--blur", "0.5")),
+    Sequence("corr53", 150, "corridor", 10, 53, ("--noise", "0.01")),
+    Sequence("walk54", 300, "walk", 30, 54),
+    Sequence("ft55", 60, "fast-turn", 10, 55),
+    Sequence("walk56", 150, "walk", 10, 56),
 )}
 
 # (run name, dataset: a folder under ../shared/data or a generator sequence's name, extra codeslam slam arguments)
@@ -83,9 +92,16 @@ RUNS = (
     ("walk43", "walk43", ()),
     ("corr44", "corr44", ()),
     ("ft45", "ft45", ()),
+    ("walk51", "walk51", ()),
+    ("hh52", "hh52", ()),
+    ("corr53", "corr53", ()),
+    ("walk54", "walk54", ()),
+    ("ft55", "ft55", ()),
+    ("walk56", "walk56", ()),
     ("holo_standin", "hololens_dvmvs", ("--depth-model", "standin")),
     ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
     ("walk_standin", "walk10", ("--depth-model", "standin")),
+    ("walk56_standin", "walk56", ("--depth-model", "standin")),
 )
 
 
