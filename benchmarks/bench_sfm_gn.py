@@ -20,11 +20,11 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
 from dataclasses import replace
 
 import torch
 
+from codeslam.clock import NO_CLOCK, StageClock
 from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.lie import se3_exp
 from codeslam.sfm.autodiff import autodiff_normal_equations
@@ -63,24 +63,18 @@ def synthetic_problem(num_frames: int, code_size: int, width: int, height: int, 
     return kfs, pairs, state
 
 
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-
-
 def time_iteration(step, device: torch.device, repeats: int) -> tuple[float, float]:
-    """Median wall time (s) of ``step(profile)`` and median GEMM share of it, after one warm-up call."""
-    step({})
+    """Median wall time (s) of ``step(clock)`` and median GEMM share of it (the 'gemm' stage the normal
+    equations time on ``clock``), after one warm-up call."""
+    step(NO_CLOCK)
     times, shares = [], []
+    clock = StageClock(device)
     for _ in range(repeats):
-        prof: dict = {}
-        _sync(device)
-        t0 = time.perf_counter()
-        step(prof)
-        _sync(device)
-        dt = time.perf_counter() - t0
-        times.append(dt)
-        shares.append(prof.get("gemm", 0.0) / dt)
+        with clock("iteration"):
+            step(clock)
+        ms = clock.split()
+        times.append(1e-3 * ms["iteration"])
+        shares.append(ms.get("gemm", 0.0) / ms["iteration"])
     return statistics.median(times), statistics.median(shares)
 
 
@@ -131,14 +125,14 @@ def main() -> None:
             layout = VariableLayout.for_sfm(F_, C, pairs.shape[0], True, fixed=[BlockId("pose", 0)])
             problem = PairProblem(level, pairs, cfg)
 
-            def analytic(prof, problem=problem, state=state, layout=layout):
+            def analytic(clock, problem=problem, state=state, layout=layout):
                 _, ev = problem.evaluate(state)
-                H, g = problem.linearize(state, ev, layout, prof)
+                H, g = problem.linearize(state, ev, layout, clock)
                 return solve_damped(H, g, cfg.initial_damping, cfg.min_diagonal)
 
-            def autograd(prof, problem=problem, state=state, layout=layout, level=level, pairs=pairs):
+            def autograd(clock, problem=problem, state=state, layout=layout, level=level, pairs=pairs):
                 problem.evaluate(state)  # the cost, as an LM iteration needs it
-                H, g = autodiff_normal_equations(level, pairs, state, layout, cfg, prof, args.chunk)
+                H, g = autodiff_normal_equations(level, pairs, state, layout, cfg, clock, args.chunk)
                 return solve_damped(H, g, cfg.initial_damping, cfg.min_diagonal)
 
             t_an, share_an = time_iteration(analytic, device, args.repeats)
@@ -151,7 +145,7 @@ def main() -> None:
                    f"{1e3 * t_ad:>11.1f} {100 * share_ad:>6.1f} {ratio:>7.1f}")
             if strided:  # the same iteration with the geometric residuals on the stride's grid
                 sparse = PairProblem(level, pairs, replace(cfg, geometric_stride=args.geometric_stride))
-                t_st, _ = time_iteration(lambda prof, sparse=sparse: analytic(prof, sparse), device, args.repeats)
+                t_st, _ = time_iteration(lambda clock, sparse=sparse: analytic(clock, sparse), device, args.repeats)
                 row += f" {1e3 * t_st:>12.1f} {t_an / t_st:>6.2f}"
             print(row)
 

@@ -62,6 +62,7 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
     import torch
 
     from codeslam.cli.common import keep_freed_memory
+    from codeslam.clock import StageClock
     from codeslam.eval.slam_run import evaluate_run_if_possible
     from codeslam.slam.config import load_config
     from codeslam.slam.pipeline import ground_truth, mapping_statistics, run_slam
@@ -83,7 +84,7 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
 
         factory, camera = standin_depth_model(), canonical_camera()
     config = load_config(None if args["config"] == "default" else args["config"])
-    system = CodeSLAM(config, factory, parallel=(mode == "parallel"))
+    system = CodeSLAM(config, factory, parallel=(mode == "parallel"), clock=StageClock(config.device))
     tracker, mapping = _thread_clock(system)
     t0 = time.perf_counter()
     run = run_slam(seq, system, camera, list(range(n)))

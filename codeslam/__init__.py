@@ -14,7 +14,8 @@ Package layout (one folder per part of the paper):
 - ``codeslam.cli``: the ``codeslam`` command, a thin shell over the above.
 
 Layers point one way: geometry <- data <- network <- sfm <- slam <- eval / recon <- cli
-(``tests/test_layers.py`` checks it).
+(``tests/test_layers.py`` checks it). Timing is the runner's: the core names its stages on a
+:class:`codeslam.clock.Clock` that the runner passes in, and never reads a clock itself (``tests/test_clock.py``).
 """
 
 __version__ = "0.1.0"

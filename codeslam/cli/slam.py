@@ -154,6 +154,7 @@ def run_to_folder(seq, indices: list[int], dataset: Path, out: Path, setup: Slam
     the evaluation, its plot and the ground truth of the processed frames, then ``report.html``. Returns the
     summary (as in result.json)."""
     from codeslam.cli.common import progress_bar
+    from codeslam.clock import StageClock
     from codeslam.eval.slam_run import evaluate_run_if_possible, plot_run
     from codeslam.report import write_groundtruth, write_report
     from codeslam.report.run import REPORT_FILE
@@ -170,7 +171,7 @@ def run_to_folder(seq, indices: list[int], dataset: Path, out: Path, setup: Slam
             keyframes += int(result.is_keyframe)
             update(done, f"{result.status}, {keyframes} keyframes")
 
-        system = CodeSLAM(setup.cfg, setup.factory, parallel=setup.parallel)
+        system = CodeSLAM(setup.cfg, setup.factory, parallel=setup.parallel, clock=StageClock(setup.cfg.device))
         run = run_slam(seq, system, setup.camera, indices, make_visualizer(viewer), progress)
     gt = ground_truth(seq, indices)
     evaluation = evaluate_run_if_possible(run.trajectory, gt)

@@ -13,10 +13,9 @@ bilinear interpolant, so this matches the analytic Jacobians with ``gradient_mod
 
 from __future__ import annotations
 
-import time
-
 import torch
 
+from codeslam.clock import NO_CLOCK, Clock
 from codeslam.geometry.image import inside_image
 from codeslam.geometry.lie import se3_exp
 from codeslam.sfm.config import SfMConfig
@@ -118,20 +117,13 @@ def autodiff_jacobian(
 
 def autodiff_normal_equations(
     level: LevelData, pairs: torch.Tensor, state: SfMState, layout: VariableLayout, cfg: SfMConfig,
-    profile: dict | None = None, chunk_size: int | None = None,
+    clock: Clock = NO_CLOCK, chunk_size: int | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """-> H (D, D) = J^T W J and g (D,) = J^T W r with J by forward-mode autograd (the baseline).
-    ``profile`` accumulates the seconds of the final J^T J product under 'gemm'."""
+    ``clock`` times the final J^T J product as the stage 'gemm' (:mod:`codeslam.clock`)."""
     f, r0, w0 = weighted_residual_fn(level, pairs, state, layout, cfg)
     J = _jacfwd(f, layout.dim, state.codes, chunk_size)  # (P T N, D), rows already scaled by sqrt(w)
-    dev = J.device
-    if profile is not None and dev.type == "cuda":
-        torch.cuda.synchronize(dev)
-    t0 = time.perf_counter()
-    H = J.transpose(0, 1) @ J
-    if profile is not None:
-        if dev.type == "cuda":
-            torch.cuda.synchronize(dev)
-        profile["gemm"] = profile.get("gemm", 0.0) + time.perf_counter() - t0
+    with clock("gemm"):
+        H = J.transpose(0, 1) @ J
     g = J.transpose(0, 1) @ (w0.sqrt() * r0).reshape(-1)
     return H, g

@@ -17,30 +17,13 @@ a row of the precomputed ``J_A = dP_A/dc_A``, ``d r / d c_A = s_A J_A[u]``, so
 
 from __future__ import annotations
 
-import time
-from contextlib import contextmanager
-
 import torch
 
+from codeslam.clock import NO_CLOCK, Clock
 from codeslam.sfm.keyframes import LevelData
 from codeslam.sfm.residuals import GEOMETRIC, PairTerms
 from codeslam.sfm.variables import AFFINE, CODE, POSE, RS, BlockId, VariableLayout
 from codeslam.sfm.warp import relative_pose_jacobians
-
-
-@contextmanager
-def _timed(profile: dict | None, key: str, device: torch.device):
-    """Adds the wall time of the block to ``profile[key]`` (synchronising CUDA so the time is the kernels')."""
-    if profile is None:
-        yield
-        return
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-    t0 = time.perf_counter()
-    yield
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-    profile[key] = profile.get(key, 0.0) + time.perf_counter() - t0
 
 
 def local_to_absolute(poses: torch.Tensor, pairs: torch.Tensor, rolling_shutter: bool = False) -> torch.Tensor:
@@ -105,13 +88,13 @@ def assemble(
     poses: torch.Tensor,
     level: LevelData,
     layout: VariableLayout,
-    profile: dict | None = None,
+    clock: Clock = NO_CLOCK,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """-> H (D, D), g (D,) over the free blocks of ``layout`` (D = layout.dim), in the dtype of the terms.
 
     terms from :func:`codeslam.sfm.residuals.pair_jacobians`; pairs (P, 2); poses (F, 4, 4) at which the terms were
-    evaluated; ``level`` supplies J_A. Fixed blocks are constants: their products are skipped. ``profile`` (dict)
-    accumulates the seconds spent in the J^T W J products under 'gemm'.
+    evaluated; ``level`` supplies J_A. Fixed blocks are constants: their products are skipped. ``clock`` times the
+    J^T W J products as the stage 'gemm' (:mod:`codeslam.clock`).
     """
     dev, dtype = terms.r.device, terms.r.dtype
     P, T, N = terms.r.shape
@@ -130,7 +113,7 @@ def assemble(
     # 2.3 ms for the columns of the (C, N) layout, 0.35 ms for the rows of this one)
     Gt = level.jac_channels_last.permute(0, 2, 3, 1).reshape(F_, N, C)
 
-    with _timed(profile, "gemm", dev):
+    with clock("gemm"):
         Jd_flat = Jd.reshape(P, T * N, L)
         H_dd = Jd_flat.transpose(1, 2) @ ((w.reshape(P, T * N, 1)) * Jd_flat)  # (P, L, L)
     g_d = (Jd_flat * (w * r).reshape(P, T * N, 1)).sum(1)  # (P, L)
@@ -159,11 +142,11 @@ def assemble(
         H_Ad = H.new_zeros(P, C, L)
         for f in frames:
             sl = code_A_free[f]
-            with _timed(profile, "gemm", dev):
+            with clock("gemm"):
                 H[sl, sl] += Gt[f].T @ (Gt[f] * q[f].unsqueeze(-1))  # J_A^T diag(q) J_A, (C, C)
             g[sl] += Gt[f].T @ gr[f]
             at = torch.nonzero(iA == f).squeeze(1)  # the pairs in which f is A
-            with _timed(profile, "gemm", dev):  # J_A^T (w s_A J_dense), (C, L) per pair
+            with clock("gemm"):  # J_A^T (w s_A J_dense), (C, L) per pair
                 H_Ad[at] = (Gt[f].T @ M[at].transpose(0, 1).reshape(N, -1)).reshape(C, len(at), L).transpose(0, 1)
         H_Aloc = H_Ad @ Q  # (P, C, K)
         Hl[:, K:K + C, :K] = H_Aloc
@@ -178,7 +161,7 @@ def assemble(
                 continue
             JB, k = terms.JB_w[p], terms.JB_idx[p]  # (C, M), J_B[v]^T at the M pixels with geometric weight
             wk, sBk = wg[p, k], sB_g[p, k]
-            with _timed(profile, "gemm", dev):
+            with clock("gemm"):
                 Hl[p, K + C:, K + C:] = (JB * (wk * sBk * sBk)) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
                 H_Bloc = (JB @ ((wk * sBk).unsqueeze(-1) * Jd[p, tg, k])) @ Q[p]  # (C, K)
                 if code_A_free[a] is not None:  # J_A^T diag(w s_A s_B) J_B[v]

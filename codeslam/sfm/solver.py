@@ -4,7 +4,7 @@ N-frame structure-from-motion entry point :func:`sfm`.
 The solver drives any *problem* with two methods (duck-typed, see :class:`PairProblem`):
 
 * ``evaluate(state) -> (cost: float, cache)``: the total cost at ``state``;
-* ``linearize(state, cache, layout, profile) -> (H, g)``: normal equations over ``layout``'s free blocks at the
+* ``linearize(state, cache, layout, clock) -> (H, g)``: normal equations over ``layout``'s free blocks at the
   state ``cache`` was evaluated at, with ``g`` the gradient of the cost and ``H`` its Gauss-Newton Hessian.
 
 so the SLAM back-end (pairs of the window + a :class:`~codeslam.sfm.variables.LinearPrior` from
@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import math
 import sys
-import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import torch
 
+from codeslam.clock import NO_CLOCK, Clock
 from codeslam.constants import MIN_LM_DAMPING
 from codeslam.errors import CodeSLAMError
 from codeslam.sfm.config import SfMConfig
@@ -31,11 +31,6 @@ from codeslam.sfm.priors import AffinePrior, CodePrior, ReadoutPrior
 from codeslam.sfm.residuals import PairEvaluation, evaluate_pairs, pair_jacobians, robust_weights, step_cost_change
 from codeslam.sfm.scale_prior import DepthScalePrior
 from codeslam.sfm.variables import CODE, RS_DIM, BlockId, LinearPrior, SfMState, VariableLayout
-
-
-def _sync(device: torch.device) -> None:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
 
 
 class PairProblem:
@@ -80,11 +75,11 @@ class PairProblem:
         return step_cost_change(self.cfg.masked_rows, old, new, old_cost, new_cost)
 
     def linearize(
-        self, state: SfMState, cache: PairEvaluation, layout: VariableLayout, profile: dict | None = None
+        self, state: SfMState, cache: PairEvaluation, layout: VariableLayout, clock: Clock = NO_CLOCK
     ) -> tuple[torch.Tensor, torch.Tensor]:
         code_b_free = any(BlockId(CODE, b) in layout for b in self.pair_b)
         terms = pair_jacobians(self.level, self.pairs, cache, with_code_b=code_b_free)
-        H, g = assemble(terms, self.pairs, state.poses, self.level, layout, profile)
+        H, g = assemble(terms, self.pairs, state.poses, self.level, layout, clock)
         for prior in (*self.fixed_priors, *self.priors):
             prior.add_to(H, g, layout, state)
         return H, g
@@ -94,8 +89,7 @@ class PairProblem:
 class LMReport:
     """What one Levenberg-Marquardt run did. costs: the initial cost and the cost after every accepted step
     (each accepted step lowered it, or with ``masked_rows: common`` lowered it over the rows valid before and
-    after, ``problem.cost_change``, so the cost itself may rise a little where a step brings rows into view);
-    step_ms: wall time of every iteration (accepted or not)."""
+    after, ``problem.cost_change``, so the cost itself may rise a little where a step brings rows into view)."""
 
     costs: list[float] = field(default_factory=list)
     iterations: int = 0
@@ -103,7 +97,6 @@ class LMReport:
     rejected: int = 0
     damping: float = 0.0
     reason: str = ""
-    step_ms: list[float] = field(default_factory=list)
 
 
 def solve_damped(H: torch.Tensor, g: torch.Tensor, damping: float, min_diagonal: float) -> torch.Tensor | None:
@@ -119,11 +112,11 @@ def solve_damped(H: torch.Tensor, g: torch.Tensor, damping: float, min_diagonal:
 
 def levenberg_marquardt(
     problem, state: SfMState, layout: VariableLayout, cfg: SfMConfig, max_iterations: int,
-    profile: dict | None = None, interrupted: Callable[[], bool] | None = None,
+    clock: Clock = NO_CLOCK, interrupted: Callable[[], bool] | None = None,
 ) -> tuple[SfMState, LMReport]:
     """Minimise ``problem``'s cost over ``layout``'s free blocks from ``state``.
 
-    ``problem`` gives ``evaluate(state) -> (cost, cache)``, ``linearize(state, cache, layout, profile) -> (H,
+    ``problem`` gives ``evaluate(state) -> (cost, cache)``, ``linearize(state, cache, layout, clock) -> (H,
     g)`` and ``cost_change(old_cache, new_cache, old_cost, new_cost)`` (the change a step is judged on,
     :attr:`SfMConfig.masked_rows`). Each iteration solves the damped normal equations; a step is accepted only if
     the new cost is finite and its change negative, then the damping shrinks; otherwise (cost increase, NaN/inf,
@@ -133,10 +126,10 @@ def levenberg_marquardt(
     tell; this also ends the run of rejections that approximate image gradients cause near the optimum), at a
     rejected step that promised less than ``rejection_stop_decrease`` of the cost, when the damping exceeds
     ``max_damping``, or when ``interrupted()`` turns true before an iteration (reason 'interrupted'; the state is
-    the last accepted one, as after any stop).
+    the last accepted one, as after any stop). ``clock`` times every iteration as the stage 'iteration' and is
+    handed to ``linearize`` (:mod:`codeslam.clock`; the runner's, if it wants the times).
     """
     report = LMReport(damping=cfg.initial_damping)
-    device = state.poses.device
     cost, cache = problem.evaluate(state)
     report.costs.append(cost)
     if not math.isfinite(cost):
@@ -152,38 +145,33 @@ def levenberg_marquardt(
         if interrupted is not None and interrupted():
             report.reason = "interrupted"
             break
-        _sync(device)
-        t0 = time.perf_counter()
-        if H is None:
-            H, g = problem.linearize(state, cache, layout, profile)
-        delta = solve_damped(H, g, lam, cfg.min_diagonal)
-        accepted, predicted = False, math.inf  # no promise without a finite step
-        if delta is not None and bool(torch.isfinite(delta).all()):
-            d = delta.to(H.dtype)
-            predicted = -float(g @ d + 0.5 * d @ (H @ d))  # decrease the quadratic model promises
-            if predicted < cfg.relative_cost_tolerance * abs(cost):
-                report.reason = "predicted decrease below tolerance"
-                _sync(device)
-                report.step_ms.append(1e3 * (time.perf_counter() - t0))
-                break
-            new_state = state.retract(layout, delta)
-            new_cost, new_cache = problem.evaluate(new_state)
-            if math.isfinite(new_cost):
-                change = problem.cost_change(cache, new_cache, cost, new_cost)
-                accepted = change < 0
-        report.iterations += 1
-        if accepted:
-            rel = -change / max(abs(cost), sys.float_info.min)
-            state, cost, cache = new_state, new_cost, new_cache
-            H = g = None
-            lam = max(lam * cfg.damping_decrease, MIN_LM_DAMPING)
-            report.accepted += 1
-            report.costs.append(cost)
-        else:
-            lam *= cfg.damping_increase
-            report.rejected += 1
-        _sync(device)
-        report.step_ms.append(1e3 * (time.perf_counter() - t0))
+        with clock("iteration"):  # the runner's stopwatch, if it passed one (codeslam.clock)
+            if H is None:
+                H, g = problem.linearize(state, cache, layout, clock)
+            delta = solve_damped(H, g, lam, cfg.min_diagonal)
+            accepted, predicted = False, math.inf  # no promise without a finite step
+            if delta is not None and bool(torch.isfinite(delta).all()):
+                d = delta.to(H.dtype)
+                predicted = -float(g @ d + 0.5 * d @ (H @ d))  # decrease the quadratic model promises
+                if predicted < cfg.relative_cost_tolerance * abs(cost):
+                    report.reason = "predicted decrease below tolerance"
+                    break
+                new_state = state.retract(layout, delta)
+                new_cost, new_cache = problem.evaluate(new_state)
+                if math.isfinite(new_cost):
+                    change = problem.cost_change(cache, new_cache, cost, new_cost)
+                    accepted = change < 0
+            report.iterations += 1
+            if accepted:
+                rel = -change / max(abs(cost), sys.float_info.min)
+                state, cost, cache = new_state, new_cost, new_cache
+                H = g = None
+                lam = max(lam * cfg.damping_decrease, MIN_LM_DAMPING)
+                report.accepted += 1
+                report.costs.append(cost)
+            else:
+                lam *= cfg.damping_increase
+                report.rejected += 1
         if not accepted and predicted < cfg.rejection_stop_decrease * abs(cost):
             report.reason = "rejected a step the model promised little"
             break
@@ -202,7 +190,7 @@ def levenberg_marquardt(
 
 def coarse_to_fine(
     problem_at: Callable[[int], Any], state, layout: VariableLayout, cfg: SfMConfig,
-    levels: Iterable[tuple[int, int]], profile: dict | None = None, interrupted: Callable[[], bool] | None = None,
+    levels: Iterable[tuple[int, int]], clock: Clock = NO_CLOCK, interrupted: Callable[[], bool] | None = None,
 ) -> tuple[Any, list[tuple[int, LMReport]], Any]:
     """Levenberg-Marquardt at each pyramid level in ``levels`` ((level, iterations), coarse to fine), each level
     starting from the one before (paper Sec. 4.1 and 4.2: the coarse levels widen the basin, the fine ones
@@ -216,7 +204,7 @@ def coarse_to_fine(
     problem = None
     for lvl, iters in levels:
         problem = problem_at(lvl)
-        state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, profile, interrupted)
+        state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, clock, interrupted)
         reports.append((lvl, rep))
         if rep.reason == "interrupted":
             break
@@ -227,8 +215,7 @@ def coarse_to_fine(
 class SfMResult:
     """Result of :func:`sfm`. poses (F, 4, 4) T_wc; codes (F, C); affine (P, 2) (log-gain, bias) per pair;
     rs (F, 3) readout rotations (None without ``rolling_shutter``); pairs (P, 2); levels: one :class:`LMReport`
-    per visited pyramid level (coarse to fine); iterations and ms_per_iteration over all levels; total_ms the wall
-    time of the whole optimisation."""
+    per visited pyramid level (coarse to fine); iterations: accepted and rejected steps over all levels."""
 
     poses: torch.Tensor
     codes: torch.Tensor
@@ -236,8 +223,6 @@ class SfMResult:
     pairs: torch.Tensor
     levels: list[tuple[int, LMReport]]
     iterations: int
-    ms_per_iteration: float
-    total_ms: float
     rs: torch.Tensor | None = None
 
     @property
@@ -269,7 +254,7 @@ def sfm(
     codes_init: torch.Tensor | None = None,
     fixed: Sequence[BlockId] = (BlockId("pose", 0),),
     priors: Sequence[LinearPrior] = (),
-    profile: dict | None = None,
+    clock: Clock = NO_CLOCK,
 ) -> SfMResult:
     """Joint optimisation of the codes and poses of ``keyframes`` (paper Sec. 4.1).
 
@@ -278,6 +263,7 @@ def sfm(
     fixed: blocks held constant; the default fixes the first pose (the gauge); codes of frames without decoder
     are always fixed. priors: extra linear priors (e.g. from marginalisation), on free blocks only.
     Coarse to fine over ``config.pyramid_levels``, each level with ``config.max_iterations`` LM iterations.
+    ``clock`` times the iterations (stage 'iteration') and their J^T W J products ('gemm'), :mod:`codeslam.clock`.
     """
     cfg = config or SfMConfig()
     levels = build_levels(keyframes, cfg.pyramid_levels)
@@ -295,7 +281,6 @@ def sfm(
     no_depth = [BlockId(CODE, i) for i, kf in enumerate(keyframes) if kf.decoder is None]  # codes with no effect
     layout = VariableLayout.for_sfm(F_, C, pair_t.shape[0], cfg.affine_brightness, [*fixed, *no_depth],
                                     rolling_shutter=cfg.rolling_shutter)
-    t0 = time.perf_counter()
     with_depth = [i for i, kf in enumerate(keyframes) if kf.decoder is not None]
 
     def problem_at(lvl: int) -> PairProblem:
@@ -305,12 +290,8 @@ def sfm(
         return PairProblem(levels[lvl], pair_t, cfg, terms)
 
     state, reports, _ = coarse_to_fine(problem_at, state, layout, cfg, zip(cfg.pyramid_levels, cfg.max_iterations),
-                                       profile)
-    _sync(device)
-    total_ms = 1e3 * (time.perf_counter() - t0)
-    n_it = sum(r.iterations for _, r in reports)
-    step_ms = [ms for _, r in reports for ms in r.step_ms]
+                                       clock)
     return SfMResult(
         poses=state.poses, codes=state.codes, affine=state.affine, pairs=pair_t, levels=reports,
-        iterations=n_it, ms_per_iteration=sum(step_ms) / max(len(step_ms), 1), total_ms=total_ms, rs=state.rs,
+        iterations=sum(r.iterations for _, r in reports), rs=state.rs,
     )

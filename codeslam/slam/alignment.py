@@ -40,6 +40,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from codeslam.clock import NO_CLOCK, Clock
 from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH, MIN_KEYPOINT_DEPTH
 from codeslam.geometry.camera import PinholeCamera, unproject_jac_depth
 from codeslam.geometry.image import image_gradients, image_pyramid, pixels_to_grid, pyramid_cameras, rgb_to_gray
@@ -486,7 +487,7 @@ class TrackingProblem:
         return self.evaluate(state)
 
     def linearize(self, state: TrackingState, ev: AlignmentEvaluation, layout: VariableLayout,
-                  profile: dict | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+                  clock: Clock = NO_CLOCK) -> tuple[torch.Tensor, torch.Tensor]:
         idx = ev.valid.nonzero().squeeze(-1)  # the M valid pixels; the others have no weight
         J = photometric_jacobian(ev.x.index_select(1, idx), ev.grad_B.index_select(1, idx),
                                  ev.gray_B.index_select(0, idx), ev.gain, self.frame.params)  # (8, M): xi_BA, a, b

@@ -26,13 +26,13 @@ from __future__ import annotations
 
 import queue
 import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import torch
 
+from codeslam.clock import NO_CLOCK, Clock
 from codeslam.geometry.lie import se3_inverse
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.frontend import SparseTrack, SparseTracker
@@ -68,7 +68,8 @@ class MappingJob:
 @dataclass
 class MappingResult:
     """What one mapping step did: the new keyframe, the window solve, the keyframe marginalised (if any), the
-    window state before the solve (for a later rollback) and wall time per stage in ms. In parallel mode the
+    window state before the solve (for a later rollback) and wall time per stage in ms (what the mapper's clock
+    timed: decode, marginalise, window; empty without a clock). In parallel mode the
     keyframe is handed over twice: as soon as it is decoded (``report`` None: the tracker can track against it
     while the window is optimised) and again when the solve is done."""
 
@@ -88,11 +89,14 @@ class Mapper:
     decode_threads: its torch threads while it decodes a keyframe (None: ``threads``). The tracker waits for a
     keyframe's decoding whenever it cannot go on without it, so more threads than ``threads`` use the cores it
     leaves idle then; the window solve, which the tracker does not wait for, keeps ``threads``.
+    clock: times each step's stages (decode, marginalise, window) on the thread that runs the steps
+    (:mod:`codeslam.clock`; a clock of its own, not the tracker's).
     """
 
     def __init__(self, config: SLAMConfig, sparse: SparseTracker | None = None, parallel: bool = False,
-                 threads: int | None = None, decode_threads: int | None = None) -> None:
+                 threads: int | None = None, decode_threads: int | None = None, clock: Clock = NO_CLOCK) -> None:
         self.config = config
+        self.clock = clock
         self.threads = threads
         self.decode_threads = decode_threads
         self.window = SlidingWindow(config.window)
@@ -191,41 +195,34 @@ class Mapper:
         tracked pose), match its keypoints with the window's, optimise the window jointly and roll the solve back
         if it fails the window's checks. Marginalising before the solve keeps every solve at K keyframes (the
         paper's "4-keyframes setup") and linearises the prior at the previous window's optimum."""
-        ms: dict[str, float] = {}
-        t0 = time.perf_counter()
-        with torch_threads(self.decode_threads if self.parallel else None):
+        with torch_threads(self.decode_threads if self.parallel else None), self.clock("decode"):
             kf = job.decode()
-        t1 = time.perf_counter()
-        ms["decode"] = 1e3 * (t1 - t0)
         if self.parallel:  # the tracker may switch to the keyframe now, before the window solve
-            self._done.put(MappingResult(kf, None, None, job.frame_position, None, {"decode": ms["decode"]}))
+            self._done.put(MappingResult(kf, None, None, job.frame_position, None, self.clock.split()))
             self._decoded.set()
         marginalised = None
-        if self.window.is_full:  # the oldest keyframe becomes a linear prior on the others
-            marginalised = self.window.remove_oldest().id
-        t2 = time.perf_counter()
-        ms["marginalise"] = 1e3 * (t2 - t1)
+        with self.clock("marginalise"):
+            if self.window.is_full:  # the oldest keyframe becomes a linear prior on the others
+                marginalised = self.window.remove_oldest().id
         self.window.add(kf)
         self._match(kf, job.ref, job.sparse)
         before = self.window.snapshot()
         depth_before = {k.id: k.median_depth() for k in self.window.keyframes}
-        t3 = time.perf_counter()
-        report = self.window.optimise(self._stop_solve.is_set)  # codes and poses: photometric + geometric + keypoints
-        if self.config.window.rollback:
-            # The new keyframe's depth before its first solve is the network's single view, not a map estimate:
-            # that solve may rightly rescale it by any factor (the map's scale and the view's can differ 3x).
-            report.rejected = self.window.check(before, {i: d for i, d in depth_before.items() if i != kf.id})
-            if report.rejected:
-                self.window.restore(before)
-        self.refresh_points()
-        if len(self.window.keyframes) == 2 and not report.rejected:  # a map segment's first solve sets its scale
-            report.depth_scale = {k.id: k.median_depth() / depth_before[k.id] for k in self.window.keyframes}
-        ms["window"] = 1e3 * (time.perf_counter() - t3)
+        with self.clock("window"):
+            report = self.window.optimise(self._stop_solve.is_set)  # codes and poses: photometric, geometric, keypoints
+            if self.config.window.rollback:
+                # The new keyframe's depth before its first solve is the network's single view, not a map estimate:
+                # that solve may rightly rescale it by any factor (the map's scale and the view's can differ 3x).
+                report.rejected = self.window.check(before, {i: d for i, d in depth_before.items() if i != kf.id})
+                if report.rejected:
+                    self.window.restore(before)
+            self.refresh_points()
+            if len(self.window.keyframes) == 2 and not report.rejected:  # a map segment's first solve sets its scale
+                report.depth_scale = {k.id: k.median_depth() / depth_before[k.id] for k in self.window.keyframes}
         self.updates += 1
-        if self.parallel:
-            del ms["decode"]  # handed over with the decoded keyframe already
         return MappingResult(kf, report, marginalised, job.frame_position,
-                             before if self.config.window.rollback and not report.rejected else None, ms)
+                             before if self.config.window.rollback and not report.rejected else None,
+                             self.clock.split())  # parallel: the decoding's time went with the keyframe
 
     def _match(self, kf: MapKeyframe, ref: MapKeyframe | None, sparse: SparseTrack | None) -> None:
         """Matched keypoints between the new keyframe and the window's others, for the window's reprojection

@@ -273,7 +273,7 @@ def frame_log_rows(results: list[FrameResult]) -> list[dict]:
             "explained": _fmt(t.explained if t else nan), "feature_inliers": t.feature_inliers if t else 0,
             "feature_matches": t.feature_matches if t else 0, "residual": _fmt(t.residual if t else nan),
             "texture": _fmt(t.texture if t else nan),
-            "iterations": t.iterations if t else 0, "window_ms": _fmt(w.ms if w else nan, 1),
+            "iterations": t.iterations if t else 0, "window_ms": _fmt(r.timings_ms.get("window", nan) if w else nan, 1),
             "window_iterations": w.iterations if w else "", "window_interrupted": int(w.interrupted) if w else "",
             "window_rejected": w.rejected if w else "", "rolled_back": r.rolled_back,
             "track_ms": _fmt(r.timings_ms.get("track", 0.0), 2), "total_ms": _fmt(sum(r.timings_ms.values()), 2),

@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass, field
@@ -40,6 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from codeslam.clock import NO_CLOCK, Clock
 from codeslam.data.frame import Frame, resample_frame
 from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
@@ -92,7 +92,8 @@ class FrameResult:
             tracked). window: the window optimisation run for a new keyframe (else None).
         marginalised_id: id of the keyframe marginalised on this frame, if any.
         rolled_back: a window solve was undone on this frame (its reason).
-        timings_ms: wall time per stage: resample, features, track, relocalise, decode, marginalise, window.
+        timings_ms: wall time per stage (resample, features, track, relocalise, readout, decode, marginalise,
+            window) as the system's clock timed them; empty with the default clock, which times nothing.
     """
 
     index: int
@@ -162,23 +163,6 @@ def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Fr
     return dataclasses.replace(frame, image=image, depth=depth, valid=None if bool(valid.all()) else valid)
 
 
-class _StageTimer:
-    """Wall time per named stage, in ms (CUDA synchronised so the time is the kernels')."""
-
-    def __init__(self, device: torch.device) -> None:
-        self.device, self.ms = device, {}
-
-    @contextmanager
-    def __call__(self, name: str) -> Iterator[None]:
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-        t0 = time.perf_counter()
-        yield
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
-        self.ms[name] = self.ms.get(name, 0.0) + 1e3 * (time.perf_counter() - t0)
-
-
 class CodeSLAM:
     """Dense monocular SLAM with learned depth codes (paper Sec. 4).
 
@@ -195,12 +179,15 @@ class CodeSLAM:
     caller's). Its problem, a few thousand pixels and 8 unknowns, gains little from OpenMP's threads, which spin
     between its small kernels against OpenCV's and the mapping's work (TUM fr1/rpy, sequential, 2 threads: track
     stage median 68 -> 30 ms with 1, 3.09 -> 3.36 frames/s).
+    clock: the runner's stopwatch (:mod:`codeslam.clock`): it times each frame's stages (resample, features,
+    track, relocalise, readout, decode) on the tracking thread, and a fork of it the mapping steps' (decode,
+    marginalise, window), which :attr:`FrameResult.timings_ms` reports; the default times nothing.
     """
 
     def __init__(self, config: SLAMConfig, depth_model: DepthModelFactory,
                  camera: PinholeCamera | None = None, parallel: bool = False,
                  mapping_threads: int | None = None, alignment_threads: int | None = 1,
-                 decode_threads: int | None = None) -> None:
+                 decode_threads: int | None = None, clock: Clock = NO_CLOCK) -> None:
         self.config = config
         self.depth_model = depth_model
         self.device = torch.device(config.device)
@@ -220,8 +207,9 @@ class CodeSLAM:
         self._alignment_threads = alignment_threads
         if decode_threads is not None and decode_threads < 1:
             raise CodeSLAMError(f"decode_threads must be >= 1, got {decode_threads}")
+        self.clock = clock
         self.mapper = Mapper(config, parallel=parallel, threads=mapping_threads if parallel else None,
-                             decode_threads=(decode_threads or total) if parallel else None)
+                             decode_threads=(decode_threads or total) if parallel else None, clock=clock.fork())
         self.keyframes: list[MapKeyframe] = []  # every keyframe ever made, by id
         self.ref: MapKeyframe | None = None  # the keyframe frames are tracked against
         self.segment = 0
@@ -256,7 +244,13 @@ class CodeSLAM:
         """Track ``frame`` against the reference keyframe (relocalise it when that fails), maybe make it a
         keyframe, optimise the window and marginalise the oldest keyframe (paper Sec. 4.2-4.3)."""
         with self.tracking_threads():
-            return self._process(frame)
+            try:
+                result = self._process(frame)
+            finally:
+                ms = self.clock.split()  # this frame's stages (none left over from a frame that raised)
+        for k, v in ms.items():  # beside the mapping stages of a keyframe mapped inline (sequential mode)
+            result.timings_ms[k] = result.timings_ms.get(k, 0.0) + v
+        return result
 
     @contextmanager
     def tracking_threads(self) -> Iterator[None]:
@@ -273,23 +267,22 @@ class CodeSLAM:
         return torch_threads(None if n is None else min(n, torch.get_num_threads()))
 
     def _process(self, frame: Frame) -> FrameResult:
-        timer = _StageTimer(self.device)
         self._check(frame)
         self._apply(self.mapper.collect())  # keyframes the mapping thread finished: track against the newest
-        views = self._views(frame, timer)
+        views = self._views(frame)
         if not self.keyframes:  # the first frame is the map's origin
-            return self._start_map(views, timer)
+            return self._start_map(views)
         ref = self.ref
         T_kf_guess = self._predict(ref)
         if not bool(torch.isfinite(views.frame.image).all()):
-            return self._lost_frame(views, ref, T_kf_guess, timer, None, "non-finite pixels in the image")
-        with timer("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
+            return self._lost_frame(views, ref, T_kf_guess, None, "non-finite pixels in the image")
+        with self.clock("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
             track, sparse, source = self._track(views, ref, T_kf_guess)
         rolled_back = ""
         if not track.ok and self._undo is not None:  # the last window solve may have broken the map
             rolled_back = self._roll_back(f"frame {frame.index} failed after it: {track.reason}")
             ref = self.ref
-            with timer("track"):
+            with self.clock("track"):
                 track, sparse, source = self._track(views, ref, self._predict(ref))
         self._undo = None
         if not track.ok and self.mapper.busy:
@@ -302,29 +295,29 @@ class CodeSLAM:
             self._apply(self.mapper.collect())  # one handed over meanwhile
             if self.ref is not ref:
                 ref = self.ref
-                with timer("track"):
+                with self.clock("track"):
                     track, sparse, source = self._track(views, ref, self._predict(ref))
         if not track.ok and self._promote_last():  # the previous frame, tracked, becomes the reference
             ref = self.ref
-            with timer("track"):
+            with self.clock("track"):
                 track, sparse, source = self._track(views, ref, self._predict(ref))
         if not track.ok:
-            with timer("relocalise"):
+            with self.clock("relocalise"):
                 found = self._relocalise(views, ref, T_kf_guess)
             if found is None:
-                return self._lost_frame(views, ref, T_kf_guess, timer, track, track.reason, rolled_back)
+                return self._lost_frame(views, ref, T_kf_guess, track, track.reason, rolled_back)
             ref, track, sparse, source, restart = found
             self._lost = 0
             if restart:  # relocalised against a keyframe outside the window: re-anchor the map there
-                return self._restart(views, ref.T_wc @ track.T_kf, timer, track, RELOCALISED, "relocalised",
+                return self._restart(views, ref.T_wc @ track.T_kf, track, RELOCALISED, "relocalised",
                                      rolled_back)
             self.ref = ref
-            return self._tracked(views, ref, track, sparse, source, timer, RELOCALISED, rolled_back)
+            return self._tracked(views, ref, track, sparse, source, RELOCALISED, rolled_back)
         self._lost = 0
-        return self._tracked(views, ref, track, sparse, source, timer, TRACKED, rolled_back)
+        return self._tracked(views, ref, track, sparse, source, TRACKED, rolled_back)
 
     def _tracked(self, views: _Views, ref: MapKeyframe, track: TrackResult, sparse: SparseTrack | None,
-                 source: str, timer: _StageTimer, status: str, rolled_back: str) -> FrameResult:
+                 source: str, status: str, rolled_back: str) -> FrameResult:
         """A frame with a pose: keep its matches for the next frame, and make it a keyframe if it has moved far
         enough (Sec. 4.3)."""
         if sparse is not None and sparse.ok and views.features is not None:
@@ -360,16 +353,16 @@ class CodeSLAM:
         turn = self._turn_from_last(T_wc) if choosing or (decision.add and self.readout > 0) else None
         estimating = choosing and turn is not None and self._records[-1].ok
         if estimating:
-            self._estimate_readout(views, ref, track, turn, timer)
+            self._estimate_readout(views, ref, track, turn)
         if not decision.add:
             self._last_tracked = (views, ref, sparse, len(self._records))
-            return self._record(views.frame, ref, track.T_kf, True, timer, **kw)
+            return self._record(views.frame, ref, track.T_kf, True, **kw)
         kid, segment = self._new_id(), self.segment
         if estimating:
             self._turn[kid] = (turn, self.readout)  # the readout and turn it is rectified by, next line
         kviews = self._rerectified(views, turn)
         job = MappingJob(lambda: self._make_keyframe(kviews, T_wc, kid, segment), ref, sparse, len(self._records))
-        result = self._record(views.frame, ref, track.T_kf, True, timer, **kw)  # re-expressed once mapped
+        result = self._record(views.frame, ref, track.T_kf, True, **kw)  # re-expressed once mapped
         done = self.mapper.insert(job)  # Sec. 4.3: decode, marginalise, optimise the window
         if done is not None:
             self._apply([done])
@@ -474,16 +467,16 @@ class CodeSLAM:
             return None
         return kf, track, sparse2 if sparse2 is not None and sparse2.ok else sparse, source, False
 
-    def _lost_frame(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor, timer: _StageTimer,
+    def _lost_frame(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor,
                     track: TrackResult | None, reason: str, rolled_back: str = "") -> FrameResult:
         """The motion model's pose, flagged; after ``recovery.lost_frames`` such frames a new map segment."""
         self._lost += 1
         self._matches = None
         if self._lost > self.config.recovery.lost_frames and self._can_anchor(views):
             self.segment += 1
-            return self._restart(views, ref.T_wc @ T_kf_guess, timer, track, PREDICTED,
+            return self._restart(views, ref.T_wc @ T_kf_guess, track, PREDICTED,
                                  f"new segment after {self._lost - 1} lost frames ({reason})", rolled_back)
-        return self._record(views.frame, ref, T_kf_guess, False, timer, track=track, reason=reason, status=PREDICTED,
+        return self._record(views.frame, ref, T_kf_guess, False, track=track, reason=reason, status=PREDICTED,
                             source="motion model", rolled_back=rolled_back)
 
     def _can_anchor(self, views: _Views) -> bool:
@@ -499,19 +492,19 @@ class CodeSLAM:
             return views.features is not None and len(views.features) >= 2 * self.config.features.min_inliers
         return True
 
-    def _restart(self, views: _Views, T_wc: torch.Tensor, timer: _StageTimer, track: TrackResult | None,
+    def _restart(self, views: _Views, T_wc: torch.Tensor, track: TrackResult | None,
                  status: str, reason: str, rolled_back: str) -> FrameResult:
         """Empty the window (its keyframes stay in the map for relocalisation and output) and make this frame the
         first keyframe of a new window at ``T_wc``, its pose the new gauge."""
         self._apply(self.mapper.wait())
         self._undo, self._matches, self._lost = None, None, 0
-        with timer("decode"):
+        with self.clock("decode"):
             kf = self._make_keyframe(views, T_wc, self._new_id(), self.segment)
         self.mapper.restart(kf)
         self._append(kf)
         self.ref = kf
         ok = status != PREDICTED
-        return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), ok, timer, track=track,
+        return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), ok, track=track,
                             reason=reason, status=status, source="features" if ok else "motion model",
                             rolled_back=rolled_back)
 
@@ -584,15 +577,15 @@ class CodeSLAM:
         self._next_id += 1
         return kid
 
-    def _start_map(self, views: _Views, timer: _StageTimer) -> FrameResult:
+    def _start_map(self, views: _Views) -> FrameResult:
         if not bool(torch.isfinite(views.frame.image).all()):
             raise CodeSLAMError(f"frame {views.frame.index} (the first) has non-finite pixels; cannot start the map")
-        with timer("decode"):
+        with self.clock("decode"):
             kf = self._make_keyframe(views, torch.eye(4, dtype=torch.float64), self._new_id(), self.segment)
         self.mapper.start(kf)
         self._append(kf)
         self.ref = kf
-        return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), True, timer, reason="first frame",
+        return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), True, reason="first frame",
                             status=INITIALISING)
 
     # ---- helpers --------------------------------------------------------------------------------------------
@@ -604,12 +597,12 @@ class CodeSLAM:
             raise CodeSLAMError(f"frame {frame.index}: timestamp {frame.timestamp} does not increase "
                                 f"(previous {self._records[-1].timestamp})")
 
-    def _views(self, frame: Frame, timer: _StageTimer) -> _Views:
+    def _views(self, frame: Frame) -> _Views:
         """The frame in the network's camera and its keypoints in the feature camera (both resampled from the
         input frame, so keypoints see its full resolution)."""
         if self.camera is None:
             self.camera = frame.camera
-        with timer("resample"):  # the depth is resampled for keyframes only (_keyframe_frame)
+        with self.clock("resample"):  # the depth is resampled for keyframes only (_keyframe_frame)
             net = resample_frame(dataclasses.replace(frame, depth=None), self.camera)
         features = None
         if self.config.features.enabled:
@@ -619,12 +612,12 @@ class CodeSLAM:
                 self.mapper.sparse = self.sparse
                 self.window.sparse = SparseSettings(self.sparse.camera, fcfg.sigma,
                                                     self.sparse.extract.orb.getScaleFactor())
-            with timer("features"):
+            with self.clock("features"):
                 features = self.sparse.features_of(frame)
         raw = (net, features, frame.camera, frame.depth)
         if self.readout <= 0:
             return _Views(net, features, raw)
-        with timer("resample"):
+        with self.clock("resample"):
             return self._rectified_views(raw, self._readout_rotation(self._last_motion()))
 
     def _rerectified(self, views: _Views, turn: torch.Tensor | None) -> _Views:
@@ -649,14 +642,13 @@ class CodeSLAM:
             return None
         return so3_log((se3_inverse(self._pose(self._records[-1])) @ T_wc)[:3, :3].to(torch.float64)).cpu()
 
-    def _estimate_readout(self, views: _Views, ref: MapKeyframe, track: TrackResult, turn: torch.Tensor,
-                          timer: _StageTimer) -> None:
+    def _estimate_readout(self, views: _Views, ref: MapKeyframe, track: TrackResult, turn: torch.Tensor) -> None:
         """Weigh a tracked frame (``turn`` from a tracked last frame) for the readout when it turns against its
         keyframe; a keyframe without a frame before it (the first) takes the turn of the frame after it."""
         if ref.id not in self._turn and self._keyframe_record.get(ref.id) == len(self._records) - 1:
             self._turn[ref.id] = (turn, 0.0)  # not rectified: made before any readout
         if ref.id in self._turn and self.readout_choice.informative(turn - self._turn[ref.id][0]):
-            with timer("readout"):
+            with self.clock("readout"):
                 self._weigh_readouts(views, ref, track, turn, *self._turn[ref.id])
 
     def _weigh_readouts(self, views: _Views, ref: MapKeyframe, track: TrackResult, turn: torch.Tensor,
@@ -780,7 +772,7 @@ class CodeSLAM:
         return last.affine if last.ok and last.keyframe_id == ref.id else None
 
     def _record(
-        self, frame: Frame, kf: MapKeyframe, T_kf: torch.Tensor, ok: bool, timer: _StageTimer,
+        self, frame: Frame, kf: MapKeyframe, T_kf: torch.Tensor, ok: bool,
         track: TrackResult | None = None, decision: KeyframeDecision | None = None,
         window: WindowReport | None = None, marginalised: int | None = None, reason: str = "",
         status: str = TRACKED, source: str = "", rolled_back: str = "",
@@ -798,7 +790,6 @@ class CodeSLAM:
             index=frame.index, timestamp=float(frame.timestamp), T_wc=self._pose(rec), tracking_ok=ok,
             status=status, keyframe_id=kf.id, is_keyframe=is_kf, reason=reason, segment=self.segment, source=source,
             track=track, keyframe=decision, window=window, marginalised_id=marginalised, rolled_back=rolled_back,
-            timings_ms=timer.ms,
         )
         self._results.append(result)
         return result

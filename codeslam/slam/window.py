@@ -24,7 +24,6 @@ held by the code prior, as in two-frame SfM.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -134,14 +133,13 @@ class MapKeyframe:
 @dataclass
 class WindowReport:
     """What one window optimisation did. pairs: (A, B) keyframe ids with residuals; levels: (level, LM report)
-    coarse to fine; ms: wall time; rejected: why the solve was rolled back ('' when kept); interrupted: the solve
+    coarse to fine; rejected: why the solve was rolled back ('' when kept); interrupted: the solve
     stopped early because the tracker needed the mapping thread (its values are the last accepted step's);
     depth_scale: keyframe id -> median depth after / before the solve, set for a map segment's first solve (see
     ``CodeSLAM._rescale``)."""
 
     pairs: list[tuple[int, int]] = field(default_factory=list)
     levels: list[tuple[int, LMReport]] = field(default_factory=list)
-    ms: float = 0.0
     rejected: str = ""
     interrupted: bool = False
     depth_scale: dict[int, float] = field(default_factory=dict)
@@ -324,7 +322,6 @@ class SlidingWindow:
         report = WindowReport()
         if len(self.keyframes) < 2:
             return report
-        t0 = time.perf_counter()
         cfg: SfMConfig = self.cfg.sfm
         dtype, device = self._tensors()
         id_pairs = self.select_pairs()
@@ -360,10 +357,7 @@ class SlidingWindow:
             kf.code = state.codes[i].detach().clone()
         for p, ids in enumerate(id_pairs):
             self._affine[ids] = state.affine[p].detach().clone()
-        self._pairs = id_pairs
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        report.pairs, report.ms = id_pairs, 1e3 * (time.perf_counter() - t0)
+        self._pairs = report.pairs = id_pairs
         return report
 
     # ---- keeping the map -------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ import pytest
 import torch
 from sfm_scene import look_pose, make_frames
 
+from codeslam.clock import StageClock
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
 from codeslam.geometry.proximity import depth_to_prox
@@ -69,20 +70,25 @@ def _scaled_prox_rmse(dec, code, code_gt):
 def test_joint_sfm_from_identity_and_zero_codes_recovers_depth_scale_and_poses():
     """Poses at identity and codes at zero (the paper's start); no occluders, so the optimum is the truth."""
     kfs, codes, gt = make_frames(GT_POSES, panel=False, seed=3, code_size=8)
-    res = sfm(kfs, master_pairs(4, 0), SfMConfig())
+    clock = StageClock()
+    res = sfm(kfs, master_pairs(4, 0), SfMConfig(), clock=clock)
     rmse0, _ = _scaled_prox_rmse(kfs[0].decoder, torch.zeros(8, dtype=D), codes[0])
     rmse, s = _scaled_prox_rmse(kfs[0].decoder, res.codes[0], codes[0])
     assert rmse < 0.02 * rmse0 and abs(s - 1) < 0.01, (rmse, rmse0, s)
     for i in range(1, 4):
         t_err, r_err = _pose_error(res.poses[i], gt[i])
         assert t_err < 0.005 and r_err < 0.1, (i, t_err, r_err)
-    assert res.iterations > 0 and res.ms_per_iteration > 0
+    # The runner's clock saw every iteration (and at most one per level that ended on the model's promise alone)
+    # and the J^T W J products inside them
+    assert 0 < res.iterations <= clock.count["iteration"] <= res.iterations + len(res.levels)
+    assert clock.count["gemm"] > 0 and 0 < clock.ms["gemm"] < clock.ms["iteration"]
 
 
 def test_joint_sfm_with_occlusions_still_improves_the_master_depth():
     """With an occluding panel the occlusion edges bias the optimum slightly (measured: scale 8%, 0.2 degrees)."""
     kfs, codes, gt = make_frames(GT_POSES, panel=True, seed=3, code_size=8)
-    res = sfm(kfs, master_pairs(4, 0), SfMConfig())
+    clock = StageClock()
+    res = sfm(kfs, master_pairs(4, 0), SfMConfig(), clock=clock)
     rmse0, _ = _scaled_prox_rmse(kfs[0].decoder, torch.zeros(8, dtype=D), codes[0])
     rmse, s = _scaled_prox_rmse(kfs[0].decoder, res.codes[0], codes[0])
     assert rmse < 0.1 * rmse0 and abs(s - 1) < 0.15, (rmse, rmse0, s)

@@ -8,6 +8,7 @@ import pytest
 import torch
 from slam_scene import MemorySequence, small_config, synth_frames
 
+from codeslam.clock import StageClock
 from codeslam.errors import CodeSLAMError
 from codeslam.eval.slam_run import evaluate_run
 from codeslam.geometry.camera import canonical_camera
@@ -25,7 +26,7 @@ def run_and_gt():
     # the trajectory as the keyframes and tracking place it, without the written trajectory's smoothing spline
     # (tests/slam/test_slam_smoothing.py), so that each keyframe's frame sits at its keyframe's pose
     system = CodeSLAM(dataclasses.replace(small_config(size=3), trajectory_smoothing=0.0),
-                      standin_depth_model(num_levels=3))
+                      standin_depth_model(num_levels=3), clock=StageClock())
     sizes = []
 
     class _Watch:
@@ -111,7 +112,6 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     keyframe is rectified again with the rotation from the last frame to its tracked pose."""
     from codeslam.geometry.lie import se3_exp, se3_inverse, so3_log
     from codeslam.geometry.rolling_shutter import rectify_image, source_pixels
-    from codeslam.slam.system import _StageTimer
 
     frames = synth_frames(3, 4, 7.5)
     cfg = small_config(size=3)
@@ -125,7 +125,7 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     T = se3_inverse(system._pose(system._records[-2])) @ system._pose(system._records[-1])
     omega = system._readout_rotation(system._last_motion())
     assert torch.allclose(omega, 0.5 * so3_log(T[:3, :3]), atol=1e-12) and float(omega.norm()) > 1e-3
-    views = system._views(frames[3], _StageTimer(torch.device("cpu")))
+    views = system._views(frames[3])
     expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera, omega))
     assert torch.allclose(views.frame.image, expected, atol=1e-6)
     # a new keyframe is rectified again with the rotation from the last frame to its tracked pose
@@ -137,7 +137,7 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     assert torch.allclose(kviews.frame.image, expected, atol=1e-5)
     plain = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
     plain.camera = frames[0].camera
-    assert torch.equal(plain._views(frames[3], _StageTimer(torch.device("cpu"))).frame.image, frames[3].image)
+    assert torch.equal(plain._views(frames[3]).frame.image, frames[3].image)
 
 
 def test_the_motion_models_velocity_leaves_out_the_windows_correction_of_a_new_keyframe():

@@ -42,7 +42,7 @@ class _Quadratic:
         cost = 0.5 * x @ self.A @ x + self.c @ x + sum(p.cost(state) for p in self.priors)
         return float(cost), None
 
-    def linearize(self, state, cache, layout, profile=None):
+    def linearize(self, state, cache, layout, clock=None):
         H, g = self.A.clone(), self.A @ self._x(state) + self.c
         for p in self.priors:
             p.add_to(H, g, layout, state)
