@@ -298,7 +298,7 @@ def write_frame_log(path: str | Path, results: list[FrameResult]) -> None:
 # ---- outputs --------------------------------------------------------------------------------------------------
 def _rgb(kf: MapKeyframe) -> np.ndarray:
     """(3, H, W) float32 colour image of a keyframe (grey repeated when it has no colour)."""
-    img = kf.keyframe.image.detach().cpu().float()
+    img = kf.view.image.detach().cpu().float()
     img = img if img.dim() == 3 else img[None]
     return img.expand(3, -1, -1).numpy() if img.shape[0] == 1 else img.numpy()
 

@@ -383,7 +383,7 @@ class CodeSLAM:
         frame = views.frame
 
         def align(start: torch.Tensor, every_level: bool = False) -> TrackResult:
-            return self.tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, start,
+            return self.tracker.track(ref.view, ref.code, frame.gray, frame.camera, start,
                                       self._affine_guess(ref), valid=frame.valid, reprojection=term,
                                       min_feature_inliers=fcfg.min_inliers if term is not None else 0,
                                       feature_threshold=fcfg.pnp_threshold,
@@ -661,7 +661,7 @@ class CodeSLAM:
         def residual(c: float) -> float:  # the frame keeps the keyframe's distortion under hypothesis c
             readout = c * (turn - kf_turn) + kf_readout * kf_turn
             frame = _rectified(net, sensor, readout) if float(readout.norm()) > 0 else net
-            r = self._readout_tracker.track(ref.keyframe, ref.code, frame.gray, frame.camera, track.T_kf,
+            r = self._readout_tracker.track(ref.view, ref.code, frame.gray, frame.camera, track.T_kf,
                                             track.affine, valid=frame.valid)
             return r.residual if r.overlap > 0 else math.nan
 
@@ -725,7 +725,7 @@ class CodeSLAM:
         b = decoder.levels[0].uncertainty
         kf = MapKeyframe(
             id=kid, frame_index=frame.index, timestamp=float(frame.timestamp),
-            keyframe=Keyframe(image, frame.camera, decoder, frame.valid),
+            view=Keyframe(image, frame.camera, decoder, frame.valid),
             T_wc=project_to_se3(T_wc), code=code, depth_zero=depth_zero,
             uncertainty=None if b is None else b.detach().cpu().float(),
             depth_gt=None if frame.depth is None else frame.depth.detach().cpu().float(), segment=segment,

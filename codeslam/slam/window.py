@@ -66,8 +66,8 @@ class MapKeyframe:
     Attributes:
         id: running keyframe number (0 = the map's origin).
         frame_index, timestamp: the frame it was made from.
-        keyframe: image (RGB or grey), camera and linear depth decoder (the decoder is dropped once the keyframe
-            is marginalised; its final depth is kept in ``depth``).
+        view: what the SfM problems see of it: image (RGB or grey), camera, validity and linear depth decoder
+            (the decoder is dropped once the keyframe is marginalised; its final depth is kept in ``depth``).
         T_wc: (4, 4) float64 CPU pose, updated by every window optimisation until marginalised.
         code: (C,) depth code (solver dtype and device), likewise; (k,) in ``code_basis``'s coordinates when that
             is set.
@@ -83,7 +83,7 @@ class MapKeyframe:
     id: int
     frame_index: int
     timestamp: float
-    keyframe: Keyframe
+    view: Keyframe
     T_wc: torch.Tensor
     code: torch.Tensor
     depth: torch.Tensor | None = None
@@ -101,22 +101,22 @@ class MapKeyframe:
 
     @property
     def active(self) -> bool:
-        return self.keyframe.decoder is not None
+        return self.view.decoder is not None
 
     def depth_map(self, level: int = 0) -> torch.Tensor:
         """(H_l, W_l) depth in metres at the current code."""
-        if self.keyframe.decoder is None:
+        if self.view.decoder is None:
             if level != 0:
                 raise ValueError("a marginalised keyframe keeps its finest depth only")
             return self.depth
-        return self.keyframe.decoder.depth(self.code, level)
+        return self.view.decoder.depth(self.code, level)
 
     def runaway_share(self, code: torch.Tensor | None = None) -> float:
         """Share of the finest level's pixels whose proximity at ``code`` (default: the keyframe's) lies at or
         beyond the ends of (0, 1), where the depth is clamped to infinity or to zero (0 once marginalised)."""
-        if self.keyframe.decoder is None:
+        if self.view.decoder is None:
             return 0.0
-        p = self.keyframe.decoder.prox(self.code if code is None else code, 0)
+        p = self.view.decoder.prox(self.code if code is None else code, 0)
         return float(((p <= MIN_PROXIMITY) | (p >= MAX_PROXIMITY) | ~torch.isfinite(p)).float().mean())
 
     def median_depth(self) -> float:
@@ -127,7 +127,7 @@ class MapKeyframe:
     def freeze(self) -> None:
         """Keep the final depth, drop the decoder (its Jacobian is the bulk of a keyframe's memory)."""
         self.depth = self.depth_map().detach()
-        self.keyframe = Keyframe(self.keyframe.image, self.keyframe.camera, None, self.keyframe.valid)
+        self.view = Keyframe(self.view.image, self.view.camera, None, self.view.valid)
 
 
 @dataclass
@@ -244,7 +244,7 @@ class SlidingWindow:
 
     # ---- problem set-up -------------------------------------------------------------------------------------
     def _tensors(self) -> tuple[torch.dtype, torch.device]:
-        ref = self.keyframes[-1].keyframe.decoder.levels[0].jac
+        ref = self.keyframes[-1].view.decoder.levels[0].jac
         return ref.dtype, ref.device
 
     def _state(self, id_pairs: list[tuple[int, int]]) -> SfMState:
@@ -263,7 +263,7 @@ class SlidingWindow:
         kfs = self.keyframes
         poses = torch.stack([k.T_wc for k in kfs])  # (F, 4, 4) float64
         depth = float(torch.tensor([k.median_depth() for k in kfs]).median())
-        ov = view_overlap(poses, kfs[0].keyframe.camera, depth)  # (F, F)
+        ov = view_overlap(poses, kfs[0].view.camera, depth)  # (F, F)
         out = []
         for a in range(len(kfs)):
             for b in range(len(kfs)):
@@ -305,8 +305,8 @@ class SlidingWindow:
             sigma = sp.sigma * sp.octave_scale ** fb.octave[kp_b].astype(np.float64)
             terms.append(keyframe_pair_term(
                 pos[ia], pos[ib], torch.from_numpy(fa.uv[kp_a]), torch.from_numpy(fb.uv[kp_b]),
-                torch.from_numpy(sigma), A.keyframe.decoder.levels[0], A.keyframe.decoder.avg_depth, sp.camera,
-                A.keyframe.camera, self.cfg.reprojection_weight))
+                torch.from_numpy(sigma), A.view.decoder.levels[0], A.view.decoder.avg_depth, sp.camera,
+                A.view.camera, self.cfg.reprojection_weight))
         return terms
 
     def _fixed(self) -> list[BlockId]:
@@ -330,7 +330,7 @@ class SlidingWindow:
         state = self._state(id_pairs)
         F_, C = state.codes.shape
         layout = VariableLayout.for_sfm(F_, C, len(id_pairs), cfg.affine_brightness, self._fixed())
-        levels = build_levels([k.keyframe for k in self.keyframes], cfg.pyramid_levels, dtype, device)
+        levels = build_levels([k.view for k in self.keyframes], cfg.pyramid_levels, dtype, device)
         n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
         sparse_terms = [StackedReprojectionTerm(self._pair_terms())]  # matched keypoints: level-independent
         if self.cfg.motion_prior_acceleration > 0:  # consecutive keyframes' velocities: level-independent too
@@ -441,7 +441,7 @@ class SlidingWindow:
         g = torch.zeros(layout.dim, dtype=torch.float64, device=device)
         if id_pairs:  # residuals of the pairs that involve the leaving keyframe
             lvl = self.prior_level
-            level = build_levels([k.keyframe for k in kfs], [lvl], dtype, device)[lvl]
+            level = build_levels([k.view for k in kfs], [lvl], dtype, device)[lvl]
             pairs = torch.tensor([[pos[a], pos[b]] for a, b in id_pairs], device=device)
             ev = evaluate_pairs(level, pairs, state.poses, state.codes, state.affine if cfg.affine_brightness
                                 else None, cfg)
@@ -456,7 +456,7 @@ class SlidingWindow:
                                       self.cfg.motion_prior_acceleration).add_to(H, g, layout, state)
         if self.cfg.depth_scale_sigma > 0:  # the leaving keyframe's scale prior
             lvl = self.prior_level
-            level = build_levels([k.keyframe for k in kfs[:1]], [lvl], dtype, device)[lvl]
+            level = build_levels([k.view for k in kfs[:1]], [lvl], dtype, device)[lvl]
             DepthScalePrior(level, [0], self.cfg.depth_scale_sigma).add_to(H, g, layout, state)
         CodePrior(cfg.code_prior_weight, [0]).add_to(H, g, layout, state)  # the leaving keyframe's (VAE prior)
         if cfg.affine_brightness:  # the leaving pairs' affine prior

@@ -71,13 +71,13 @@ class RerunVisualizer(Visualizer):
         from codeslam.geometry.camera import pixel_grid, unproject
 
         rr = self.rr
-        cam = kf.keyframe.camera
+        cam = kf.view.camera
         depth = kf.depth_map().detach().cpu().double()  # (H, W)
         uv = pixel_grid(cam.height, cam.width, depth.dtype)  # (H, W, 2)
         xyz_c = unproject(uv, depth, cam.params(depth.dtype))[::POINT_STRIDE, ::POINT_STRIDE].reshape(-1, 3)
         T = kf.T_wc.numpy()
         xyz_w = xyz_c.numpy() @ T[:3, :3].T + T[:3, 3]
-        img = kf.keyframe.image.detach().cpu()
+        img = kf.view.image.detach().cpu()
         img = (img if img.dim() == 3 else img[None]).expand(3, -1, -1)  # (3, H, W), grey repeated
         rgb = img[:, ::POINT_STRIDE, ::POINT_STRIDE].reshape(3, -1).T.numpy()  # (N, 3)
         colors = (rgb.clip(0, 1) * 255).astype(np.uint8)

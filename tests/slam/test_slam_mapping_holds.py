@@ -125,12 +125,12 @@ def test_window_check_rejects_a_solve_that_moves_the_map_away():
     from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
     from codeslam.sfm.keyframes import Keyframe
 
-    dec = last.keyframe.decoder
+    dec = last.view.decoder
     jac = torch.zeros_like(dec.levels[0].jac)
     jac[0, : jac.shape[1] // 10] = 1.0
     bumped = LinearDecoder((DecoderLevel(dec.levels[0].prox0, jac, dec.levels[0].uncertainty), *dec.levels[1:]),
                            dec.avg_depth)
-    last.keyframe = Keyframe(last.keyframe.image, last.keyframe.camera, bumped, last.keyframe.valid)
+    last.view = Keyframe(last.view.image, last.view.camera, bumped, last.view.valid)
     start = last.code.clone()
     last.code = start.clone()
     last.code[0] += 2.0

@@ -62,7 +62,7 @@ def test_keyframes_window_and_marginalisation(run_and_gt):
     assert max(sizes) == 3  # never more keyframes in the window than configured
     marginalised = [r.marginalised_id for r in res if r.marginalised_id is not None]
     assert marginalised == list(range(len(run.keyframes) - 3))  # the oldest, in order
-    assert all(k.depth is not None and k.keyframe.decoder is None for k in run.keyframes[:-3])
+    assert all(k.depth is not None and k.view.decoder is None for k in run.keyframes[:-3])
     assert all(r.status == "tracked" for r in res[res.index(kf_results[1]):])
     second = kf_results[1]
     assert second.window is not None and second.window.iterations > 0  # two-frame SfM initialisation

@@ -162,7 +162,7 @@ def test_marginal_prior_anchors_the_window_after_the_fixed_keyframe_leaves(margi
     optimum = [k.T_wc.clone() for k in w.keyframes[1:]]
     codes = [k.code.clone() for k in w.keyframes[1:]]
     old = w.remove_oldest()
-    assert old.keyframe.decoder is None and old.depth is not None  # frozen: decoder released, depth kept
+    assert old.view.decoder is None and old.depth is not None  # frozen: decoder released, depth kept
     assert len(w) == 3
     if marginalise:
         assert w.prior is not None and {b.index for b in w.prior.blocks} == {1, 2, 3}
