@@ -10,7 +10,8 @@ memory, by default the walk at 10 frames/s) and each mapping mode it runs the wh
   thread of their own, :func:`codeslam.slam.pipeline.read_ahead`);
 * each frame's time in ``CodeSLAM.process`` on the tracking thread, wall and that thread's CPU time (median and
   90th percentile ms; in parallel mode the difference is waiting: for an urgent keyframe, the GIL or a core), and
-  the mapping steps' wall and CPU time in all (s);
+  the mapping steps' wall and CPU time in all (s; their stages decode, marginalise and window, as the mapping
+  thread's clock timed them);
 * map updates (window solves) per second of wall time, keyframes, failed frames, and the window solves cut short
   by the tracker (parallel mode; in brackets those cut before their first iteration);
 * peak resident memory (MB);
@@ -62,7 +63,6 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
     import torch
 
     from codeslam.cli.common import keep_freed_memory
-    from codeslam.clock import StageClock
     from codeslam.eval.slam_run import evaluate_run_if_possible
     from codeslam.slam.config import load_config
     from codeslam.slam.pipeline import ground_truth, mapping_statistics, run_slam
@@ -84,8 +84,9 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
 
         factory, camera = standin_depth_model(), canonical_camera()
     config = load_config(None if args["config"] == "default" else args["config"])
-    system = CodeSLAM(config, factory, parallel=(mode == "parallel"), clock=StageClock(config.device))
-    tracker, mapping = _thread_clock(system)
+    clock = _bench_clock(config.device)
+    system = CodeSLAM(config, factory, parallel=(mode == "parallel"), clock=clock)
+    tracker = _thread_clock(system)
     t0 = time.perf_counter()
     run = run_slam(seq, system, camera, list(range(n)))
     wall = time.perf_counter() - t0
@@ -105,31 +106,59 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
         "ate_sim3": ev.get("ate_sim3_rmse"), "rot_deg": ev.get("rot_aligned_rmse_deg"),
         "frame_wall": (float(np.median(tracker["wall"])), float(np.percentile(tracker["wall"], 90))),
         "frame_cpu": (float(np.median(tracker["cpu"])), float(np.percentile(tracker["cpu"], 90))),
-        "mapping_wall_s": sum(mapping["wall"]) / 1e3, "mapping_cpu_s": sum(mapping["cpu"]) / 1e3,
+        "mapping_wall_s": sum(f.wall_s for f in clock.forks), "mapping_cpu_s": sum(f.cpu_s for f in clock.forks),
         "solves": mapping_statistics(run.results),
     })
 
 
-def _thread_clock(system) -> tuple[dict, dict]:
-    """Wall and calling-thread CPU time (ms) of every ``system.process`` (the tracking thread's frame) and every
-    mapping step (the mapping thread's, in parallel mode), by wrapping the two on this instance: in parallel mode a
-    frame's wall time beyond its CPU time is waiting, for an urgent keyframe, the GIL or a core. The CPU time
-    counts the calling thread only (not the extra OpenMP workers of a step on more than one thread)."""
-    tracker, mapping = {"wall": [], "cpu": []}, {"wall": [], "cpu": []}
+def _thread_clock(system) -> dict:
+    """Wall and calling-thread CPU time (ms) of every ``system.process`` (the tracking thread's frame), by wrapping
+    it on this instance: in parallel mode a frame's wall time beyond its CPU time is waiting, for an urgent
+    keyframe, the GIL or a core. The CPU time counts the calling thread only (not the extra OpenMP workers of a
+    step on more than one thread)."""
+    tracker = {"wall": [], "cpu": []}
+    process = system.process
 
-    def clocked(fn, into):
-        def call(*args, **kwargs):
+    def clocked(*args, **kwargs):
+        w0, c0 = time.perf_counter(), time.thread_time()
+        try:
+            return process(*args, **kwargs)
+        finally:
+            tracker["wall"].append(1e3 * (time.perf_counter() - w0))
+            tracker["cpu"].append(1e3 * (time.thread_time() - c0))
+
+    system.process = clocked
+    return tracker
+
+
+def _bench_clock(device):
+    """The system's clock (:class:`codeslam.clock.StageClock`, whose stages the per-stage rows read), which also
+    sums the wall and CPU time of every stage it timed on its thread, never reset by a split; its forks (the
+    mapping steps' clock) are kept in ``forks``: their sums are the mapping's wall and CPU time."""
+    from contextlib import contextmanager
+
+    from codeslam.clock import StageClock
+
+    class BenchClock(StageClock):
+        def __init__(self, device) -> None:
+            super().__init__(device)
+            self.wall_s, self.cpu_s, self.forks = 0.0, 0.0, []
+
+        @contextmanager
+        def __call__(self, stage: str):
             w0, c0 = time.perf_counter(), time.thread_time()
             try:
-                return fn(*args, **kwargs)
+                with super().__call__(stage):
+                    yield
             finally:
-                into["wall"].append(1e3 * (time.perf_counter() - w0))
-                into["cpu"].append(1e3 * (time.thread_time() - c0))
-        return call
+                self.wall_s += time.perf_counter() - w0
+                self.cpu_s += time.thread_time() - c0
 
-    system.process = clocked(system.process, tracker)
-    system.mapper._step = clocked(system.mapper._step, mapping)
-    return tracker, mapping
+        def fork(self) -> BenchClock:
+            self.forks.append(BenchClock(self.device))
+            return self.forks[-1]
+
+    return BenchClock(device)
 
 
 def _run_or_report(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
