@@ -80,7 +80,9 @@ def code_jacobian(
     with torch.no_grad():
         if model.config.linear_decoder:
             prox0, jac = _linear_jacobian(model, feats, chunk_size)
-            prox = [p + torch.einsum("bchw,bc->bhw", J, code)[:, None] for p, J in zip(prox0, jac, strict=True)]
+            # bmm, not einsum("bchw,bc->bhw"), which took a batched matrix-vector path 19x slower at B = 8
+            # (the same values; see LevelData.prox)
+            prox = [p + torch.bmm(code.unsqueeze(1), J.flatten(2)).view_as(p) for p, J in zip(prox0, jac, strict=True)]
         else:
             prox, jac = _forward_mode_jacobian(model, feats, code)
     if all_levels:

@@ -111,7 +111,11 @@ class LevelData:
 
     def prox(self, codes: torch.Tensor) -> torch.Tensor:
         """codes (F, C) -> (F, 1, H, W) decoded proximity ``prox0 + J c`` (exact for a linear decoder)."""
-        return self.prox0 + torch.einsum("fchw,fc->fhw", self.jac, codes).unsqueeze(1)
+        F_, C, H, W = self.jac.shape
+        # One (1, C) x (C, N) product per frame. torch.einsum("fchw,fc->fhw") chose a batched matrix-vector
+        # product over the transposed Jacobian instead: 5.1 against 0.12 ms at C = 64, 4 x 128x96, 2 threads (the
+        # same values to the bit), about 6% of a SLAM window solve, which evaluates this at every step.
+        return self.prox0 + torch.bmm(codes.unsqueeze(1), self.jac.reshape(F_, C, H * W)).reshape(F_, 1, H, W)
 
 
 def build_levels(
