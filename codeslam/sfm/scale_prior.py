@@ -25,6 +25,7 @@ import torch
 
 from codeslam.geometry.proximity import d_depth_d_prox, prox_to_depth
 from codeslam.sfm.keyframes import LevelData
+from codeslam.sfm.normal_equations import batched_mv
 from codeslam.sfm.variables import CODE, BlockId, SfMState, VariableLayout
 
 
@@ -75,7 +76,7 @@ class DepthScalePrior:
         m = self._mean_log_depth(prox)
         d = prox_to_depth(prox, self._a).clamp_min(1e-6)
         dlog = torch.where(self._valid, d_depth_d_prox(prox, self._a) / d, 0.0)  # (K, N) d log D / dp
-        grad = (self._jac @ dlog[..., None]).squeeze(-1) / self._count[:, None]  # (K, C) dm/dc
+        grad = batched_mv(self._jac, dlog) / self._count[:, None]  # (K, C) dm/dc
         return (m - self._target) / self.sigma, grad / self.sigma
 
     def cost(self, state: SfMState) -> torch.Tensor:

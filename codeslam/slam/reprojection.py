@@ -27,7 +27,7 @@ from codeslam.geometry.camera import PinholeCamera, project, project_jac
 from codeslam.geometry.image import bilinear_sample
 from codeslam.geometry.lie import hat, se3_act
 from codeslam.geometry.proximity import d_depth_d_prox, prox_to_depth
-from codeslam.sfm.normal_equations import add_local_blocks
+from codeslam.sfm.normal_equations import add_local_blocks, batched_mv
 from codeslam.sfm.residuals import huber_cost_and_weight
 from codeslam.sfm.variables import CODE, POSE, POSE_DIM, BlockId, SfMState, VariableLayout
 from codeslam.sfm.warp import relative_pose, relative_pose_jacobians
@@ -286,7 +286,7 @@ class StackedReprojectionTerm:
         pad[self.slot], pad_w[self.slot], pad_r[self.slot] = J, Jw, r
         pad, pad_w, pad_r = (t.reshape(P, 2 * self.n_max, -1) for t in (pad, pad_w, pad_r))
         H_p = pad_w.transpose(1, 2) @ pad  # (P, D, D) each pair's J^T W J
-        g_p = (pad_w.transpose(1, 2) @ pad_r).squeeze(-1)  # (P, D)
+        g_p = batched_mv(pad_w.transpose(1, 2), pad_r.squeeze(-1))  # (P, D)
         blocks = [[(BlockId(POSE, a), 0, POSE_DIM), (BlockId(POSE, b), POSE_DIM, 2 * POSE_DIM),
                    (BlockId(CODE, a), 2 * POSE_DIM, D)] for a, b in zip(self.a.tolist(), self.b.tolist())]
         add_local_blocks(H, g, layout, blocks, H_p, g_p)

@@ -11,7 +11,7 @@ from codeslam.geometry.lie import se3_exp
 from codeslam.sfm.autodiff import autodiff_normal_equations, retract_differentiable
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import build_levels
-from codeslam.sfm.normal_equations import _local_blocks, add_local_blocks, assemble, dense_jacobian
+from codeslam.sfm.normal_equations import _local_blocks, add_local_blocks, assemble, batched_mv, dense_jacobian
 from codeslam.sfm.residuals import evaluate_pairs, pair_jacobians
 from codeslam.sfm.variables import AFFINE, CODE, POSE, RS, BlockId, LinearPrior, SfMState, VariableLayout
 
@@ -184,3 +184,13 @@ def test_the_window_sized_local_blocks_add_up_the_same_on_every_call():
                     H_ref[si, sj] += H_local[p, i0:i1, j0:j1].double()
     torch.testing.assert_close(H.double(), H_ref, atol=1e-4, rtol=1e-5)
     torch.testing.assert_close(gv.double(), g_ref, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.parametrize("shape", [(4, 64, 300), (3, 8, 1), (1, 1, 5)])
+def test_batched_mv_is_the_batched_matrix_vector_product(shape):
+    gen = torch.Generator().manual_seed(0)
+    A = torch.randn(*shape, generator=gen, dtype=torch.float64)
+    v = torch.randn(shape[0], shape[2], generator=gen, dtype=torch.float64)
+    torch.testing.assert_close(batched_mv(A, v), (A @ v[..., None]).squeeze(-1), rtol=1e-12, atol=1e-12)
+    At = A.transpose(1, 2).contiguous().transpose(1, 2)  # a transposed view, as the callers pass
+    torch.testing.assert_close(batched_mv(At, v), (A @ v[..., None]).squeeze(-1), rtol=1e-12, atol=1e-12)
