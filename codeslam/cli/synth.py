@@ -34,7 +34,7 @@ def synth_command(
                                      "close by; 2 = also large rooms, open-plan, corridors, ceilings to 4 m and half "
                                      "the views along the room from standing or sitting height (depth to 13 m); "
                                      "3 = version 2's rooms, views along the room and at things from a person's "
-                                     "height."),
+                                     "height; 4 = the motion presets' rooms, views along their camera paths."),
     workers: int = typer.Option(1, "--workers", help="Worker processes (shards or sequences in parallel)."),
     supersample: int | None = typer.Option(
         None, "--supersample", help="Anti-aliasing: s x s colour rays per pixel (default: 2 sequences, 1 --train)."

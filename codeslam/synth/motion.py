@@ -47,6 +47,10 @@ builds each preset's sequences in a room of the preset's size (:attr:`MotionPres
 
 Library use: ``generate_sequence(out, seed, frames, motion="walk", fps=10)``, or
 ``preset_trajectory(scene, frames, rng, "walk", fps=10)`` for the poses alone.
+
+Training data version 4 (``codeslam synth --train --data-version 4``, :func:`preset_path_views`) draws its views
+from these paths: each room is one preset's room, and its views are frames of that preset's path through it, so
+the network sees rooms and views as the presets (and people walking with a camera) do.
 """
 
 from __future__ import annotations
@@ -385,4 +389,32 @@ def preset_trajectory(scene: Scene, n_frames: int, rng: np.random.Generator, mot
                         f"or a larger room")
 
 
-__all__ = ["MotionPreset", "PRESETS", "SIM_HZ", "get_preset", "preset_trajectory"]
+#: Data version 4: the share of rooms walked through as each preset does (the presets' own rooms), the length of
+#: each room's path (seconds) and the rate it is sampled at before views are drawn from it.
+PATH_VIEW_SHARES = {"handheld": 0.3, "walk": 0.3, "corridor": 0.2, "fast-turn": 0.2}
+PATH_VIEW_SECONDS = 30.0
+PATH_VIEW_FPS = 10.0
+
+
+def preset_path_views(seed: int, n: int, rng: np.random.Generator) -> tuple[Scene, torch.Tensor]:
+    """Training data version 4: a room and ``n`` views (n, 4, 4) float64 ``T_wc`` of it as people move a camera.
+    A preset is drawn (:data:`PATH_VIEW_SHARES`), its room built for ``seed`` (:meth:`MotionPreset.scene`) and its
+    path over :data:`PATH_VIEW_SECONDS` simulated; the views are frames of that path at distinct random times
+    (:data:`PATH_VIEW_FPS`), in time order. A room the drawn preset fits no path into is passed to the next
+    preset (in :data:`PATH_VIEW_SHARES`' order) with a room of its own."""
+    names = list(PATH_VIEW_SHARES)
+    first = int(rng.choice(len(names), p=np.array(list(PATH_VIEW_SHARES.values()))))
+    frames = int(round(PATH_VIEW_SECONDS * PATH_VIEW_FPS)) + 1
+    for k in range(len(names)):
+        preset = PRESETS[names[(first + k) % len(names)]]
+        scene = preset.scene(seed)
+        try:
+            T = preset_trajectory(scene, frames, rng, preset, fps=PATH_VIEW_FPS)
+        except CodeSLAMError:  # no path fits this room: another preset's
+            continue
+        return scene, T[torch.from_numpy(np.sort(rng.choice(frames, size=n, replace=n > frames)))]
+    raise CodeSLAMError(f"no motion preset fits a camera path into the rooms of seed {seed}")
+
+
+__all__ = ["MotionPreset", "PATH_VIEW_SHARES", "PRESETS", "SIM_HZ", "get_preset", "preset_path_views",
+           "preset_trajectory"]

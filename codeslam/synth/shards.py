@@ -30,6 +30,7 @@ import torch
 from codeslam.errors import CodeSLAMError, DatasetError
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.io import atomic_path, ensure_dir
+from codeslam.synth.motion import preset_path_views
 from codeslam.synth.render import RenderConfig, depth_to_uint16, render, to_uint8
 from codeslam.synth.scene import build_scene, build_scene_v2
 from codeslam.synth.trajectory import random_views, random_views_v2, random_views_v3
@@ -43,8 +44,23 @@ SHARD_FORMAT = "codeslam-shard-v1"
 #: height 0.7-4 m away, 15% version 1's close-ups (:func:`codeslam.synth.trajectory.random_views_v3`): version 2
 #: kept version 1's table-top close-ups from 0.35-1.3 m for half its views, and a network trained on it still
 #: took a person's downward view of a table 1.5-2.5 m away (the HoloLens walk) for such a close-up.
-DATA_VERSIONS = {1: (build_scene, random_views), 2: (build_scene_v2, random_views_v2),
-                 3: (build_scene_v2, random_views_v3)}
+#: 4: rooms and views of the motion presets, each room walked through as one preset does and its views frames of
+#: that path (:func:`codeslam.synth.motion.preset_path_views`): rooms of 2-15 m and corridors seen as people
+#: moving a camera see them.
+
+
+def _rooms_and_views(make_scene, make_views):
+    """A data version's ``draw(seed, n, rng) -> (scene, (n, 4, 4) T_wc)`` from its room and view functions."""
+
+    def draw(seed: int, n: int, rng: np.random.Generator):
+        scene = make_scene(seed)
+        return scene, make_views(scene, n, rng)
+
+    return draw
+
+
+DATA_VERSIONS = {1: _rooms_and_views(build_scene, random_views), 2: _rooms_and_views(build_scene_v2, random_views_v2),
+                 3: _rooms_and_views(build_scene_v2, random_views_v3), 4: preset_path_views}
 #: Depth range (metres) for data versions 2 and 3, whose rooms reach 20 m: the 16-bit depth's limit at 1/5000 m.
 V2_MAX_DEPTH = 13.0
 DEPTH_FACTOR = 5000.0
@@ -108,13 +124,12 @@ def render_shard(spec: ShardSpec, index: int) -> dict[str, torch.Tensor]:
     m = spec.shard_views(index)
     images, depths, poses = [], [], []
     scene_i = done = 0
-    make_scene, make_views = DATA_VERSIONS[spec.version]
+    draw = DATA_VERSIONS[spec.version]
     while done < m:
         k = min(spec.views_per_scene, m - done)
         s_seed = _scene_seed(spec.seed, index, scene_i)
-        scene = make_scene(s_seed)
         rng = np.random.default_rng(np.random.SeedSequence([s_seed, 0x71E3]))
-        T = make_views(scene, k, rng)
+        scene, T = draw(s_seed, k, rng)
         for a in range(0, k, RENDER_BATCH):
             img, dep = render(scene, spec.camera, T[a:a + RENDER_BATCH], spec.render,
                               noise_seed=s_seed + a)

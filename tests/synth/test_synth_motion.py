@@ -109,3 +109,28 @@ def test_bad_presets_and_rates_are_refused(tmp_path):
     with pytest.raises(CodeSLAMError, match="unknown motion preset"):
         generate_sequence(tmp_path / "x", 1, 3, motion="jog")
     assert not (tmp_path / "x").exists()
+
+
+def test_path_views_are_frames_of_a_preset_path_in_its_room():
+    """Training data version 4: views of one preset's room, on a path a person walks (at the preset's heights,
+    clear of every surface), in time order, reproducible; every preset is drawn over a few rooms."""
+    from codeslam.synth.motion import PATH_VIEW_SHARES, preset_path_views
+
+    rooms = {}
+    for seed in range(12):
+        scene, T = preset_path_views(seed, 16, np.random.default_rng(seed))
+        assert T.shape == (16, 4, 4) and T.dtype == torch.float64
+        scene2, T2 = preset_path_views(seed, 16, np.random.default_rng(seed))
+        assert torch.equal(T, T2) and scene2.size == scene.size
+        name = next(n for n in PATH_VIEW_SHARES if PRESETS[n].scene(seed).size == scene.size)
+        rooms[name] = rooms.get(name, 0) + 1
+        lo = min(PRESETS[name].height) - 0.15  # the preset's heights, give or take the bob and shake
+        hi = max(PRESETS[name].height) + 0.15
+        z = T[:, 2, 3]
+        assert bool(((z > lo) & (z < hi)).all()), (name, z)
+        assert bool((scene.free_distance(T[:, :3, 3].float()) >= PRESETS[name].clearance - 1e-3).all())
+        R = T[:, :3, :3]
+        assert torch.allclose(R @ R.transpose(-1, -2), torch.eye(3, dtype=torch.float64).expand(16, 3, 3), atol=1e-9)
+    assert len(rooms) >= 3, rooms  # 0.2-0.3 shares each: three presets or more over 12 rooms
+    _, many = preset_path_views(0, 400, np.random.default_rng(0))  # more views than the path's frames: repeats
+    assert many.shape == (400, 4, 4)

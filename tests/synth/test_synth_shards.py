@@ -113,4 +113,26 @@ def test_version_2_shards_are_marked_and_see_farther(tmp_path):
         assert ("data_version" in meta) == (version == 2)  # version 1 shards keep their old metadata
     assert depths[2] > 1.3 * depths[1]  # larger rooms seen along their length
     with pytest.raises(CodeSLAMError, match="data-version"):
-        ShardSpec(views=1, camera=cam, version=4)
+        ShardSpec(views=1, camera=cam, version=5)
+
+
+def test_version_4_shards_hold_views_along_the_presets_paths(tmp_path):
+    """Data version 4: marked, reproducible, views at a person's height (the presets' 1.1-1.8 m), rendered to the
+    longer depth range of versions 2 and up."""
+    from safetensors import safe_open
+
+    from codeslam.synth.shards import V2_MAX_DEPTH
+
+    cam = canonical_camera(32, 24)
+    spec = ShardSpec(views=24, camera=cam, seed=5, views_per_scene=8, shard_size=24,
+                     render=RenderConfig(max_depth=V2_MAX_DEPTH), version=4)
+    for out in ("a", "b"):
+        write_shards(spec, tmp_path / out)
+    a, b = (tmp_path / out / "shard_00000.safetensors" for out in ("a", "b"))
+    assert a.read_bytes() == b.read_bytes()
+    _, depth, _ = read_shard(a)
+    with safe_open(str(a), "pt") as f:
+        assert f.metadata()["data_version"] == "4"
+        T = f.get_tensor("T_wc")
+    assert T.shape == (24, 4, 4) and bool(((T[:, 2, 3] > 0.9) & (T[:, 2, 3] < 2.0)).all())
+    assert float((depth > 0).float().mean()) > 0.5
