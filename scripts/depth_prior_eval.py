@@ -149,7 +149,8 @@ def evaluate(model, path: str, frames: str | None, shard_views: int, batch: int 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--weights", action="append", default=None, help="weights file (repeat); 'default' = shipped")
-    ap.add_argument("--set", action="append", default=None, help="name=PATH[@FRAMES] (repeat); default: all")
+    ap.add_argument("--set", action="append", default=None,
+                    help="name=PATH[@FRAMES] (repeat): these sets instead of the defaults (beside --only's)")
     ap.add_argument("--only", default=None, help="comma list of default set names to evaluate")
     ap.add_argument("--shard-views", type=int, default=256)
     ap.add_argument("--json", type=Path, default=None)
@@ -161,9 +162,13 @@ def main() -> None:
 
     sets = dict(DEFAULT_SETS)
     if args.only:
+        unknown = sorted(set(args.only.split(",")) - sets.keys())
+        if unknown:
+            ap.error(f"--only: no default set {', '.join(unknown)} (choose from {', '.join(sets)})")
         sets = {k: sets[k] for k in args.only.split(",")}
-    if args.set:
-        sets = dict(s.split("=", 1) for s in args.set)
+    if args.set:  # the given sets instead of the defaults, or beside those --only names
+        given = dict(s.split("=", 1) for s in args.set)
+        sets = (sets if args.only else {}) | given
     results: dict = {}
     rows = ["| weights | set | frames | zero-code RMSE | best constant | ratio | median depth ratio | scaled RMSE "
             "| scale spread | scale jump |", "|---|---|---|---|---|---|---|---|---|---|"]

@@ -49,3 +49,11 @@ def test_exact_prediction_and_constant_prediction():
     g = a / (depth + a)
     const.add(torch.full_like(depth, float(g.double().mean())), depth, a)  # the best single constant
     assert math.isclose(const.result()["ratio"], 1.0, rel_tol=1e-4)
+
+
+def test_an_unknown_set_name_is_a_one_line_error():
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, str(SCRIPT), "--only", "tum,nope"], capture_output=True, text=True)
+    assert out.returncode == 2 and "no default set nope" in out.stderr and "Traceback" not in out.stderr
