@@ -257,7 +257,7 @@ def solve_pnp(xyz: np.ndarray, uv: np.ndarray, camera: PinholeCamera, threshold_
 
 def pose_distance(T_a: torch.Tensor, T_b: torch.Tensor) -> tuple[float, float]:
     """(4, 4) poses -> (translation distance, rotation angle in degrees) of ``T_a^-1 T_b``."""
-    from codeslam.geometry.lie import so3_log
+    from codeslam.geometry.lie import so3_angle_host
 
     D = se3_inverse(T_a.to(torch.float64)) @ T_b.to(torch.float64)
-    return float(D[:3, 3].norm()), math.degrees(float(so3_log(D[:3, :3]).norm()))
+    return float(D[:3, 3].norm()), math.degrees(so3_angle_host(D[:3, :3]))

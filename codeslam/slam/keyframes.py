@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import torch
 
-from codeslam.geometry.lie import so3_log
+from codeslam.geometry.lie import so3_angle_host
 from codeslam.slam.config import KeyframeConfig
 
 #: The reason of a keyframe the tracker wanted and did not take because the mapping thread was still busy with the
@@ -39,7 +39,7 @@ def motion_since_keyframe(T_kf: torch.Tensor, median_depth: float) -> tuple[floa
 
     The baseline-to-depth ratio measures parallax independently of the map's (monocular) scale."""
     t = float(T_kf[:3, 3].norm())
-    angle = float(so3_log(T_kf[:3, :3]).norm())
+    angle = so3_angle_host(T_kf[:3, :3])
     return t / median_depth, math.degrees(angle)
 
 

@@ -32,7 +32,7 @@ import torch
 
 from codeslam.constants import MAX_PROXIMITY, MIN_PROXIMITY
 from codeslam.geometry.camera import PinholeCamera
-from codeslam.geometry.lie import se3_inverse, so3_log
+from codeslam.geometry.lie import se3_inverse, so3_angle_host
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.normal_equations import assemble
@@ -392,7 +392,7 @@ class SlidingWindow:
             rel0 = se3_inverse(before.values[a.id][0]) @ before.values[b.id][0]
             rel1 = se3_inverse(a.T_wc) @ b.T_wc
             D = se3_inverse(rel0) @ rel1
-            rot = math.degrees(float(so3_log(D[:3, :3]).norm()))
+            rot = math.degrees(so3_angle_host(D[:3, :3]))
             shift = float(D[:3, 3].norm())
             scale = max(float(rel0[:3, 3].norm()), 1e-9)
             if rot > cfg.max_rotation_change_deg:

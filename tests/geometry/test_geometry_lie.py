@@ -21,6 +21,7 @@ from codeslam.geometry.lie import (
     se3_inverse,
     se3_log,
     se3_log_host,
+    so3_angle_host,
     so3_exp,
     so3_left_jacobian,
     so3_left_jacobian_inv,
@@ -167,6 +168,17 @@ def test_se3_log_host_is_se3_log_at_every_angle_branch_and_keeps_dtype():
     T32 = se3_exp(_xis(1, 16)[0]).float()
     xi = se3_log_host(T32)
     assert xi.dtype == torch.float32 and torch.allclose(xi.double(), se3_log(T32.double()), atol=1e-6)
+
+
+def test_so3_angle_host_is_the_norm_of_so3_log_at_every_angle():
+    """Tiny, small, large and near-pi angles about random axes, and the identity."""
+    axes = torch.nn.functional.normalize(torch.randn(8, 3, generator=_gen(17), dtype=F64), dim=-1)
+    for angle in (0.0, 1e-12, 1e-7, 1e-3, 0.3, 1.5, 3.0, math.pi - 1e-6, math.pi):
+        for axis in axes:
+            R = so3_exp(angle * axis)
+            assert abs(so3_angle_host(R) - float(so3_log(R).norm())) < 1e-12
+            assert abs(so3_angle_host(R) - angle) < 1e-9
+    assert abs(so3_angle_host(so3_exp(torch.tensor([0.2, -0.1, 0.4])).float()) - math.sqrt(0.21)) < 1e-6
 
 
 def test_se3_group_laws():
