@@ -36,17 +36,6 @@ from codeslam.synth.scene import build_scene, build_scene_v2
 from codeslam.synth.trajectory import random_views, random_views_v2, random_views_v3
 
 SHARD_FORMAT = "codeslam-shard-v1"
-#: Data versions: how rooms are built and views drawn. 1: furnished rooms of 3-7 m seen mostly from close by
-#: (the data of the first default weights); 2: also large rooms, open-plan spaces split into rooms, corridors,
-#: ceilings to 4 m, and half the views looking along the room from standing or sitting height
-#: (:func:`codeslam.synth.scene.build_scene_v2`, :func:`codeslam.synth.trajectory.random_views_v2`); 3: version
-#: 2's rooms, 40% of the views along the room, 45% looking at furniture, tables, walls or the floor from a person's
-#: height 0.7-4 m away, 15% version 1's close-ups (:func:`codeslam.synth.trajectory.random_views_v3`): version 2
-#: kept version 1's table-top close-ups from 0.35-1.3 m for half its views, and a network trained on it still
-#: took a person's downward view of a table 1.5-2.5 m away (the HoloLens walk) for such a close-up.
-#: 4: rooms and views of the motion presets, each room walked through as one preset does and its views frames of
-#: that path (:func:`codeslam.synth.motion.preset_path_views`): rooms of 2-15 m and corridors seen as people
-#: moving a camera see them.
 
 
 def _rooms_and_views(make_scene, make_views):
@@ -59,9 +48,20 @@ def _rooms_and_views(make_scene, make_views):
     return draw
 
 
+#: Data versions: how rooms are built and views drawn. 1: furnished rooms of 3-7 m seen mostly from close by
+#: (the data of the first default weights); 2: also large rooms, open-plan spaces split into rooms, corridors,
+#: ceilings to 4 m, and half the views looking along the room from standing or sitting height
+#: (:func:`codeslam.synth.scene.build_scene_v2`, :func:`codeslam.synth.trajectory.random_views_v2`); 3: version
+#: 2's rooms, 40% of the views along the room, 45% looking at furniture, tables, walls or the floor from a person's
+#: height 0.7-4 m away, 15% version 1's close-ups (:func:`codeslam.synth.trajectory.random_views_v3`): version 2
+#: kept version 1's table-top close-ups from 0.35-1.3 m for half its views, and a network trained on it still
+#: took a person's downward view of a table 1.5-2.5 m away (the HoloLens walk) for such a close-up.
+#: 4: rooms and views of the motion presets, each room walked through as one preset does and its views frames of
+#: that path (:func:`codeslam.synth.motion.preset_path_views`): rooms of 4-15 m and 10-20 m corridors seen as people
+#: moving a camera see them.
 DATA_VERSIONS = {1: _rooms_and_views(build_scene, random_views), 2: _rooms_and_views(build_scene_v2, random_views_v2),
                  3: _rooms_and_views(build_scene_v2, random_views_v3), 4: preset_path_views}
-#: Depth range (metres) for data versions 2 and 3, whose rooms reach 20 m: the 16-bit depth's limit at 1/5000 m.
+#: Depth range (metres) for data versions 2 and up, whose rooms reach 20 m: the 16-bit depth's limit at 1/5000 m.
 V2_MAX_DEPTH = 13.0
 DEPTH_FACTOR = 5000.0
 #: Views rendered in one call (bounds memory; results do not depend on it).
