@@ -162,10 +162,11 @@ def main() -> None:
 
     sets = dict(DEFAULT_SETS)
     if args.only:
-        unknown = sorted(set(args.only.split(",")) - sets.keys())
+        only = args.only.split(",")
+        unknown = sorted(set(only) - sets.keys())
         if unknown:
             ap.error(f"--only: no default set {', '.join(unknown)} (choose from {', '.join(sets)})")
-        sets = {k: sets[k] for k in args.only.split(",")}
+        sets = {k: sets[k] for k in only}
     if args.set:  # the given sets instead of the defaults, or beside those --only names
         given = dict(s.split("=", 1) for s in args.set)
         sets = (sets if args.only else {}) | given
