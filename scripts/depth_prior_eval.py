@@ -168,6 +168,9 @@ def main() -> None:
             ap.error(f"--only: no default set {', '.join(unknown)} (choose from {', '.join(sets)})")
         sets = {k: sets[k] for k in only}
     if args.set:  # the given sets instead of the defaults, or beside those --only names
+        bad = [s for s in args.set if "=" not in s]
+        if bad:
+            ap.error(f"--set takes name=PATH[@FRAMES], got {bad[0]!r}")
         given = dict(s.split("=", 1) for s in args.set)
         sets = (sets if args.only else {}) | given
     results: dict = {}

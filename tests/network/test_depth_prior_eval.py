@@ -51,9 +51,11 @@ def test_exact_prediction_and_constant_prediction():
     assert math.isclose(const.result()["ratio"], 1.0, rel_tol=1e-4)
 
 
-def test_an_unknown_set_name_is_a_one_line_error():
+def test_an_unknown_or_malformed_set_is_a_one_line_error():
     import subprocess
     import sys
 
     out = subprocess.run([sys.executable, str(SCRIPT), "--only", "tum,nope"], capture_output=True, text=True)
     assert out.returncode == 2 and "no default set nope" in out.stderr and "Traceback" not in out.stderr
+    out = subprocess.run([sys.executable, str(SCRIPT), "--set", "a/path"], capture_output=True, text=True)
+    assert out.returncode == 2 and "--set takes name=PATH" in out.stderr and "Traceback" not in out.stderr
