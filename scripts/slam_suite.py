@@ -5,8 +5,10 @@ all of them at once: the two shared real sequences (the HoloLens walk at every f
 fr1/rpy), the generator's motion presets (walk, hand-held, corridor, two fast turns), five generator sequences
 that no setting was chosen on (seeds 41-45) and six added after the last setting was chosen (seeds 51-56: a 200-frame
 walk, a 300-frame hand-held, a noisy corridor, a walk at 30 frames/s, a fast turn at 10 frames/s, a walk towards a
-blank wall), with the network's depth, and four of them again with the dataset's own depth (``--depth-model
-standin``), which separates the tracker from the network.
+blank wall), with the network's depth, four of them again with the dataset's own depth (``--depth-model
+standin``), which separates the tracker from the network, and the walk towards a blank wall with the network's
+code Jacobian but the dataset's depth at the zero code (``--depth-model true-prior``), which separates the
+network's prior from the code's span.
 
 The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 40 minutes on one
 core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DATA --out OUT/NAME -q`` plus the
@@ -102,6 +104,7 @@ RUNS = (
     ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
     ("walk_standin", "walk10", ("--depth-model", "standin")),
     ("walk56_standin", "walk56", ("--depth-model", "standin")),
+    ("walk56_trueprior", "walk56", ("--depth-model", "true-prior")),
 )
 
 

@@ -107,7 +107,7 @@ def evaluate_command(
     from rich.console import Console
 
     from codeslam.cli.common import open_frames, set_threads
-    from codeslam.cli.slam import run_to_folder, setup_slam, video_options
+    from codeslam.cli.slam import ORACLE_DEPTH_MODELS, run_to_folder, setup_slam, video_options
     from codeslam.data.video import is_video_file
     from codeslam.io import atomic_write, check_output_dir, check_output_file
 
@@ -128,8 +128,8 @@ def evaluate_command(
         options = video_options(d, o.fmt, o.camera, o.fov, o.fps, o.every) if video else {}
         opened.append(open_frames(d, o.fmt, o.frames, min_frames=2, what="SLAM", increasing=True,
                                   options=options))
-        if o.depth_model == "standin" and not opened[-1][0].has_depth:
-            raise ConfigError(f"--depth-model standin needs datasets with depth maps; {d} has none")
+        if o.depth_model in ORACLE_DEPTH_MODELS and not opened[-1][0].has_depth:
+            raise ConfigError(f"--depth-model {o.depth_model} needs datasets with depth maps; {d} has none")
     console = Console(stderr=True)
     summaries = []
     for k, (d, name, (seq, indices)) in enumerate(zip(datasets, names, opened), start=1):

@@ -16,13 +16,16 @@ from codeslam.cli.app import app
 from codeslam.cli.common import DatasetArg, Device, Format, Frames, JsonOut, OutDir, Quiet, Threads, Weights, parse_size
 from codeslam.errors import ConfigError
 
-DEPTH_MODELS = ("network", "standin")
+DEPTH_MODELS = ("network", "standin", "true-prior")
+#: The depth models built from the dataset's own depth (oracles, for diagnosis).
+ORACLE_DEPTH_MODELS = ("standin", "true-prior")
 
 # Options of a SLAM run (`slam` and `evaluate` share them).
 SlamConfigFile = Annotated[Path | None, typer.Option("--config", help="YAML overlay of the SLAM configuration.")]
 DepthModelName = Annotated[str, typer.Option(
-    "--depth-model", help="network (the trained network) or standin (a network-free stand-in built from the "
-    "dataset's own depth, an oracle for testing the tracking and mapping back-end).")]
+    "--depth-model", help="network (the trained network), standin (a network-free stand-in built from the "
+    "dataset's own depth, an oracle for testing the tracking and mapping back-end) or true-prior (the network's "
+    "code Jacobian with the zero code at the dataset's depth, an oracle for the network's prior alone).")]
 MappingMode = Annotated[bool, typer.Option(
     "--sequential/--parallel", help="Map inline after each keyframe's tracking (deterministic, for tests and "
     "debugging) or on a thread beside the tracking (PTAM-like; tracking waits only when its keyframe leaves the "
@@ -113,18 +116,22 @@ def setup_slam(config: Path | None, weights: Path | None, device: str | None, de
 
     if depth_model not in DEPTH_MODELS:
         raise ConfigError(f"--depth-model must be one of {', '.join(DEPTH_MODELS)}, got {depth_model!r}")
-    if weights is not None and depth_model != "network":
-        raise ConfigError("--weights applies to --depth-model network only")
+    if weights is not None and depth_model == "standin":
+        raise ConfigError("--weights applies to --depth-model network and true-prior only")
     cfg = load_config(config)
     cfg = dataclasses.replace(cfg, device=check_device(device, cfg.device))
     mode = "sequential" if sequential else "parallel"
-    if depth_model == "network":
+    if depth_model in ("network", "true-prior"):
         from codeslam.depthmodel import DepthModel
-        from codeslam.slam.depth import network_depth_model
+        from codeslam.slam.depth import network_depth_model, true_prior_depth_model
 
         model = DepthModel.load(weights, device=cfg.device)
-        return SlamSetup(cfg, network_depth_model(model), model.camera, depth_model,
-                         {"depth_model": "network", "weights": str(weights) if weights else "default",
+        factory, name = network_depth_model(model), "network"
+        if depth_model == "true-prior":
+            factory = true_prior_depth_model(factory)
+            name = "true-prior (the network's code Jacobian, the zero code at the dataset's depth: an oracle)"
+        return SlamSetup(cfg, factory, model.camera, depth_model,
+                         {"depth_model": name, "weights": str(weights) if weights else "default",
                           "mapping": mode}, not sequential)
     from codeslam.slam.depth import standin_depth_model
 
@@ -162,8 +169,8 @@ def run_to_folder(seq, indices: list[int], dataset: Path, out: Path, setup: Slam
     from codeslam.slam.system import CodeSLAM
     from codeslam.viz import make_visualizer
 
-    if setup.depth_model == "standin" and not seq.has_depth:
-        raise ConfigError(f"--depth-model standin needs a dataset with depth maps; {dataset} has none")
+    if setup.depth_model in ORACLE_DEPTH_MODELS and not seq.has_depth:
+        raise ConfigError(f"--depth-model {setup.depth_model} needs a dataset with depth maps; {dataset} has none")
     keyframes = 0
     with progress_bar(label, len(indices), quiet) as update:
         def progress(done: int, total: int, result) -> None:

@@ -5,7 +5,9 @@ level (paper Sec. 4.1: the decoder's Jacobian is computed once per keyframe).
   :class:`codeslam.depthmodel.DepthModel`;
 * :func:`standin_depth_model`: a network-free stand-in built from the frame's measured depth, to run and test
   the tracking and mapping back-end on RGB-D data without trained weights. It is an oracle for the depth prior
-  (its zero-code depth is the blurred true depth) and is reported as such wherever it is used.
+  (its zero-code depth is the blurred true depth) and is reported as such wherever it is used;
+* :func:`true_prior_depth_model`: the network's decoder with its zero-code depth replaced by the frame's measured
+  depth, an oracle for the prior alone (the network's code Jacobian kept).
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ import torch
 
 from codeslam.data.frame import Frame
 from codeslam.errors import CodeSLAMError
+from codeslam.geometry.image import image_pyramid
 from codeslam.geometry.proximity import depth_to_prox
-from codeslam.sfm.decoder import LinearDecoder, standin_decoder
+from codeslam.sfm.decoder import DecoderLevel, LinearDecoder, standin_decoder
 from codeslam.slam.system import DepthModelFactory
 
 
@@ -34,6 +37,44 @@ def network_depth_model(model) -> DepthModelFactory:
             raise CodeSLAMError(f"frame {frame.index} is not in the network's {camera.width}x{camera.height} "
                                 "canonical camera; resample it first")
         return model.linear_decoders(model.features(frame.image[None]))[0]
+
+    return decode
+
+
+def _measured_depth(frame: Frame, what: str) -> torch.Tensor:
+    """The frame's depth (float64) with its holes filled from their surroundings (:func:`fill_depth_holes`);
+    CodeSLAMError without depth."""
+    if frame.depth is None:
+        raise CodeSLAMError(f"the {what} depth model needs depth maps and this dataset has none; use the "
+                            "network (--depth-model network)")
+    depth = frame.depth.to(torch.float64)
+    valid = torch.isfinite(depth) & (depth > 0)
+    if not bool(valid.any()):
+        raise CodeSLAMError(f"frame {frame.index} has no valid depth for the {what} depth model")
+    return fill_depth_holes(depth, valid)
+
+
+def true_prior_depth_model(depth_model: DepthModelFactory) -> DepthModelFactory:
+    """An oracle for the prior alone: ``depth_model``'s decoder (the network's code Jacobian and uncertainty on
+    every level) with its zero-code proximity replaced by the frame's measured depth (holes filled by
+    :func:`fill_depth_holes`; the coarser levels its image pyramid, as the stand-in's). Needs frames with depth.
+
+    The stand-in replaces the code's Jacobian as well; this keeps the network's, so a run that holds here and
+    fails with the network says that the network's zero-code depth is what fails, not the code's span, the
+    tracker or the window (docs/results/slam_table.md, twentieth session: the generator's nine walk and corridor
+    runs end within 0.62% of their paths this way, eight of them at 1.43-4.02% with the network's zero code)."""
+
+    def decode(frame: Frame) -> LinearDecoder:
+        filled = _measured_depth(frame, "true-prior")
+        net = depth_model(frame)
+        if tuple(net.levels[0].prox0.shape) != tuple(filled.shape):
+            raise CodeSLAMError(f"frame {frame.index}: its depth is {tuple(filled.shape)}, the depth model's "
+                                f"output {tuple(net.levels[0].prox0.shape)}")
+        prox = depth_to_prox(filled, net.avg_depth)
+        pyramid = image_pyramid(prox[None, None], net.num_levels)
+        levels = tuple(DecoderLevel(p[0, 0].to(lv.prox0.dtype), lv.jac, lv.uncertainty)
+                       for p, lv in zip(pyramid, net.levels))
+        return LinearDecoder(levels, net.avg_depth)
 
     return decode
 
@@ -82,14 +123,7 @@ def standin_depth_model(
     """
 
     def decode(frame: Frame) -> LinearDecoder:
-        if frame.depth is None:
-            raise CodeSLAMError("the stand-in depth model needs depth maps and this dataset has none; use the "
-                                "network (--depth-model network)")
-        depth = frame.depth.to(torch.float64)
-        valid = torch.isfinite(depth) & (depth > 0)
-        if not bool(valid.any()):
-            raise CodeSLAMError(f"frame {frame.index} has no valid depth for the stand-in depth model")
-        filled = fill_depth_holes(depth, valid)  # the stand-in needs a hole-free target
+        filled = _measured_depth(frame, "stand-in")  # the stand-in needs a hole-free target
         offset = None if code_offset_scale is None else standin_true_code(frame.index, code_size,
                                                                            code_offset_scale, seed)
         return standin_decoder(depth_to_prox(filled, avg_depth), code_size, num_levels, avg_depth,

@@ -130,3 +130,31 @@ def test_rerun_viewer_without_rerun_is_one_line(dataset, tmp_path, capsys):
     err = _one_line_error(capsys, ["slam", str(dataset / "seq" / "scene_000"), "--viewer", "rerun", "--depth-model",
                                    "standin", "--size", "64x48", "--out", str(tmp_path / "o"), "-q"])
     assert "rerun-sdk" in err
+
+
+def test_true_prior_runs_the_network_jacobian_on_the_dataset_depth(dataset, tmp_path, capsys):
+    """``--depth-model true-prior``: the shipped network's decoder with the zero code at the dataset's depth, stated
+    as an oracle in the summary; it needs depth maps and takes --weights (the stand-in does not)."""
+    from PIL import Image
+
+    seq_dir = str(dataset / "seq" / "scene_000")
+    out, js = tmp_path / "out", tmp_path / "s.json"
+    rc = main(["slam", seq_dir, "--depth-model", "true-prior", "--config", str(dataset / "slam.yaml"), "--out",
+               str(out), "--json", str(js), "--frames", "0:20:4", "-q", "--threads", "1"])
+    assert rc == 0, capsys.readouterr().err
+    summary = json.loads(js.read_text())
+    assert summary["depth_model"].startswith("true-prior") and "oracle" in summary["depth_model"]
+    assert summary["weights"] == "default" and summary["frames"] == 5 and summary["tracking_failures"] == 0
+    with np.load(out / "keyframes.npz", allow_pickle=False) as npz:  # the zero code is the measured depth
+        ok = npz["depth_gt"] > 0
+        np.testing.assert_allclose(npz["depth_zero"][ok], npz["depth_gt"][ok], rtol=1e-3)
+    images = tmp_path / "nodepth"
+    (images / "images").mkdir(parents=True)
+    for k in range(3):
+        Image.fromarray(np.full((48, 64, 3), 60 * k + 20, np.uint8)).save(images / "images" / f"frame_{k:04d}.png")
+    (images / "camera.yaml").write_text("fx: 50\nfy: 50\ncx: 31.5\ncy: 23.5\n")
+    err = _one_line_error(capsys, ["slam", str(images), "--depth-model", "true-prior", "--out", str(out / "x"), "-q"])
+    assert "needs a dataset with depth maps" in err
+    err = _one_line_error(capsys, ["slam", seq_dir, "--depth-model", "standin", "--weights", str(tmp_path / "w"),
+                                   "--out", str(out / "y"), "-q"])
+    assert "--weights applies to --depth-model network and true-prior only" in err

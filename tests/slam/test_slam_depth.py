@@ -1,5 +1,6 @@
 """Depth models for keyframes: the network adapter gives the network's own decoding on every level, the stand-in
-reproduces the measured depth at its true code and fills a sensor's holes from their surroundings."""
+reproduces the measured depth at its true code and fills a sensor's holes from their surroundings, the true prior
+keeps the network's code Jacobian with the measured depth at the zero code."""
 
 from __future__ import annotations
 
@@ -13,9 +14,16 @@ from codeslam.data.frame import resample_frame
 from codeslam.depthmodel import DepthModel
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import canonical_camera
+from codeslam.geometry.image import image_pyramid
 from codeslam.geometry.proximity import depth_to_prox
 from codeslam.network import CodeNetwork, NetworkConfig
-from codeslam.slam.depth import fill_depth_holes, network_depth_model, standin_depth_model, standin_true_code
+from codeslam.slam.depth import (
+    fill_depth_holes,
+    network_depth_model,
+    standin_depth_model,
+    standin_true_code,
+    true_prior_depth_model,
+)
 
 
 def test_standin_reaches_the_measured_depth_at_its_true_code():
@@ -30,10 +38,8 @@ def test_standin_reaches_the_measured_depth_at_its_true_code():
 
 
 def test_network_depth_model_decodes_like_the_network():
-    torch.manual_seed(0)
-    cfg = NetworkConfig(code_size=4, width=64, height=48, image_channels=(4, 4, 4, 4), depth_channels=(4, 4, 4, 4),
-                        full_res_channels=4, bottleneck_channels=4, fc_units=8)
-    model = DepthModel(CodeNetwork(cfg).eval())
+    model = _tiny_model()
+    cfg = model.network.config
     frame = resample_frame(synth_frames(3, 12, 10.0)[0], model.camera)
     dec = network_depth_model(model)(frame)
     assert dec.num_levels == 4 and dec.code_size == 4 and dec.avg_depth == cfg.avg_depth
@@ -46,6 +52,38 @@ def test_network_depth_model_decodes_like_the_network():
     other = dataclasses.replace(frame, camera=canonical_camera(64, 48, hfov_deg=70))
     with pytest.raises(CodeSLAMError, match="canonical camera"):
         network_depth_model(model)(other)
+
+
+def _tiny_model() -> DepthModel:
+    torch.manual_seed(0)
+    cfg = NetworkConfig(code_size=4, width=64, height=48, image_channels=(4, 4, 4, 4), depth_channels=(4, 4, 4, 4),
+                        full_res_channels=4, bottleneck_channels=4, fc_units=8)
+    return DepthModel(CodeNetwork(cfg).eval())
+
+
+def test_true_prior_keeps_the_network_jacobian_with_the_measured_depth_at_the_zero_code():
+    model = _tiny_model()
+    frame = resample_frame(synth_frames(3, 12, 10.0)[0], model.camera)
+    depth = frame.depth.clone()
+    depth[10:14, 20:30] = 0.0  # a sensor's hole: filled from around it
+    frame = dataclasses.replace(frame, depth=depth)
+    net = network_depth_model(model)(frame)
+    dec = true_prior_depth_model(network_depth_model(model))(frame)
+    assert dec.num_levels == net.num_levels == 4 and dec.code_size == 4 and dec.avg_depth == net.avg_depth
+    zero = torch.zeros(4)
+    valid = depth > 0
+    want = depth_to_prox(depth.double(), net.avg_depth)
+    torch.testing.assert_close(dec.prox(zero, 0)[valid].double(), want[valid], atol=1e-6, rtol=1e-6)
+    hole = dec.depth(zero, 0)[~valid]  # filled between the depths around it, not 0 or inf
+    assert bool(torch.isfinite(hole).all()) and float(hole.min()) >= float(depth[valid].min()) - 1e-4
+    pyr = image_pyramid(dec.prox(zero, 0)[None, None].double(), 4)
+    for lvl in range(4):
+        assert torch.equal(dec.levels[lvl].jac, net.levels[lvl].jac)  # the network's code Jacobian, untouched
+        assert torch.equal(dec.levels[lvl].uncertainty, net.levels[lvl].uncertainty)
+        torch.testing.assert_close(dec.prox(zero, lvl).double(), pyr[lvl][0, 0], atol=1e-6, rtol=1e-6)
+    assert float((net.prox(zero, 0) - dec.prox(zero, 0)).abs().mean()) > 0.01  # the network's own zero code differs
+    with pytest.raises(CodeSLAMError, match="depth maps"):
+        true_prior_depth_model(network_depth_model(model))(dataclasses.replace(frame, depth=None))
 
 
 def test_holes_are_filled_from_their_surroundings_not_with_one_depth():
