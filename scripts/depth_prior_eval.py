@@ -22,8 +22,18 @@ follows its keyframes' priors, so a prior whose scale jumps from view to view ma
 (the HoloLens walk, issue 13: the border fill raised the spread from 0.28 to 0.30 and SLAM's ATE from 0.14 to
 0.17 m while the ratio and median improved).
 
+With ``--span``, also where the code's span holds the truth (slower: each frame's code Jacobian): for every frame
+the code ``c`` of the linear decoder ``prox0 + J c`` is fitted by least squares (a weak ridge) to the true depth
+scaled to ``s`` times the zero code's median scale, for ``s`` on a grid from 0.3 to 1.5, and the fit's log-depth
+error after its own median scale is read. ``span_scale`` is the median over frames of the ``s`` with the smallest
+error, ``span_error`` that error and ``span_error_1`` the error at ``s = 1``. SLAM's window fits the codes to the
+images, which fix the shape and not the scale, so a span that holds the truth's shape best at half the zero
+code's scale lets the map shrink to half (docs/results/slam_table.md, twentieth session: the generator's five
+walks, span scale 0.5, end their SLAM runs at 0.44-0.60 of their zero code's scale; TUM and the HoloLens walk,
+span scale 1, within 10% of it).
+
     python scripts/depth_prior_eval.py --weights W [--weights W2 ...] [--set name=PATH[@FRAMES] ...]
-        [--json OUT.json] [--markdown OUT.md] [--threads 1]
+        [--span] [--json OUT.json] [--markdown OUT.md] [--threads 1]
 """
 
 from __future__ import annotations
@@ -96,6 +106,47 @@ class PriorStats:
                 "scale_spread": spread, "scale_jump": jump}
 
 
+#: The scales of the truth, relative to the zero code's median, at which --span fits the code.
+SPAN_SCALES = (0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.5)
+#: The ridge of that fit per pixel (weak: what the span can hold, not what the code prior would allow).
+SPAN_RIDGE = 1e-6
+
+
+def span_fit(prox0: torch.Tensor, jac: torch.Tensor, depth_gt: torch.Tensor, a: float,
+             scales: tuple[float, ...] = SPAN_SCALES, ridge: float = SPAN_RIDGE) -> dict[float, float]:
+    """One frame: its zero-code proximity (H, W), code Jacobian (C, H, W) and true depth (H, W; 0 = invalid) ->
+    for each s in ``scales`` the log-depth RMSE, after its median, of ``prox0 + J c`` fitted by ridge least squares
+    (on the valid pixels) to the true depth scaled to s times the zero code's median ratio to it."""
+    valid = torch.isfinite(depth_gt) & (depth_gt > 0)
+    p0 = prox0.double()[valid]
+    J = jac.double()[:, valid]  # (C, N)
+    d = depth_gt.double()[valid]
+    d0 = a * (1.0 - p0.clamp(1e-6, 1 - 1e-6)) / p0.clamp(1e-6, 1 - 1e-6)  # Eq. 4 inverted
+    m = torch.exp(torch.median(torch.log(d0 / d)))
+    A = J @ J.T + ridge * J.shape[1] * torch.eye(J.shape[0], dtype=torch.float64)
+    out = {}
+    for s in scales:
+        target = d * m * s
+        c = torch.linalg.solve(A, J @ (a / (target + a) - p0))
+        p = (p0 + J.T @ c).clamp(1e-6, 1 - 1e-6)
+        err = torch.log(a * (1.0 - p) / p / target)
+        out[s] = float((err - err.median()).square().mean().sqrt())
+    return out
+
+
+def span_summary(fits: list[dict[float, float]]) -> dict:
+    """Per-frame :func:`span_fit` results -> median best scale, its error and the error at scale 1."""
+    if not fits:
+        return {}
+    best = [min(f, key=f.get) for f in fits]
+
+    def median(xs: list[float]) -> float:
+        return float(torch.tensor(xs, dtype=torch.float64).median())
+
+    return {"span_scale": median(best), "span_error": median([f[b] for f, b in zip(fits, best)]),
+            "span_error_1": median([f[1.0] for f in fits])}
+
+
 def _dataset_frames(model, path: str, frames: str | None):
     from codeslam.cli.common import open_frames
 
@@ -119,20 +170,25 @@ def _shard_frames(model, path: str, views: int):
             return
 
 
-def evaluate(model, path: str, frames: str | None, shard_views: int, batch: int = 16) -> dict:
-    """Zero-code prior statistics of one set (dataset folder or shard folder)."""
+def evaluate(model, path: str, frames: str | None, shard_views: int, batch: int = 16, span: bool = False) -> dict:
+    """Zero-code prior statistics of one set (dataset folder or shard folder); with ``span`` also
+    :func:`span_summary`."""
     from codeslam.network.data import shard_files
 
     p = Path(path)
     is_shards = p.is_file() or bool(shard_files(p))
     source = _shard_frames(model, path, shard_views) if is_shards else _dataset_frames(model, path, frames)
-    stats, images, depths, n = PriorStats(), [], [], 0
+    stats, images, depths, n, fits = PriorStats(), [], [], 0, []
 
     def flush():
         feats = model.features(torch.stack(images))
         code = feats[0].new_zeros(len(images), model.code_size)
         prox = model.decode(feats, code)[0][:, 0].cpu()  # (B, H, W) finest level
         stats.add(prox, torch.stack(depths), model.avg_depth)
+        if span:
+            for dec, depth in zip(model.linear_decoders(feats), depths):
+                lv = dec.levels[0]
+                fits.append(span_fit(lv.prox0.cpu(), lv.jac.cpu(), depth.cpu(), model.avg_depth))
 
     for image, depth in source:
         images.append(image)
@@ -143,7 +199,7 @@ def evaluate(model, path: str, frames: str | None, shard_views: int, batch: int 
             images, depths = [], []
     if images:
         flush()
-    return {"frames": n, **stats.result()}
+    return {"frames": n, **stats.result(), **span_summary(fits)}
 
 
 def main() -> None:
@@ -153,6 +209,7 @@ def main() -> None:
                     help="name=PATH[@FRAMES] (repeat): these sets instead of the defaults (beside --only's)")
     ap.add_argument("--only", default=None, help="comma list of default set names to evaluate")
     ap.add_argument("--shard-views", type=int, default=256)
+    ap.add_argument("--span", action="store_true", help="also where the code's span holds the truth (slower)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--markdown", type=Path, default=None)
     ap.add_argument("--threads", type=int, default=1)
@@ -175,7 +232,7 @@ def main() -> None:
         sets = (sets if args.only else {}) | given
     results: dict = {}
     rows = ["| weights | set | frames | zero-code RMSE | best constant | ratio | median depth ratio | scaled RMSE "
-            "| scale spread | scale jump |", "|---|---|---|---|---|---|---|---|---|---|"]
+            "| scale spread | scale jump | span scale | span error (at 1) |", "|---" * 12 + "|"]
     for w in args.weights or ["default"]:
         model = DepthModel.load(None if w == "default" else w)
         results[w] = {}
@@ -185,14 +242,15 @@ def main() -> None:
                 print(f"skip {name}: {path} not found", flush=True)
                 continue
             t0 = time.perf_counter()
-            r = evaluate(model, path, frames or None, args.shard_views)
+            r = evaluate(model, path, frames or None, args.shard_views, span=args.span)
             r["seconds"] = time.perf_counter() - t0
             results[w][name] = r
             row = (f"| {Path(w).name if w != 'default' else 'shipped'} | {name} | {r['frames']} | "
                    f"{r.get('zero_rmse', float('nan')):.4f} | {r.get('const_rmse', float('nan')):.4f} | "
                    f"{r.get('ratio', float('nan')):.2f} | {r.get('median_depth_ratio', float('nan')):.2f} | "
                    f"{r.get('si_rmse', float('nan')):.4f} | {r.get('scale_spread', float('nan')):.3f} | "
-                   f"{r.get('scale_jump', float('nan')):.3f} |")
+                   f"{r.get('scale_jump', float('nan')):.3f} | {r.get('span_scale', float('nan')):.2f} | "
+                   f"{r.get('span_error', float('nan')):.3f} ({r.get('span_error_1', float('nan')):.3f}) |")
             rows.append(row)
             print(row, flush=True)
     if args.json:

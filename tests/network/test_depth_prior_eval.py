@@ -59,3 +59,27 @@ def test_an_unknown_or_malformed_set_is_a_one_line_error():
     assert out.returncode == 2 and "no default set nope" in out.stderr and "Traceback" not in out.stderr
     out = subprocess.run([sys.executable, str(SCRIPT), "--set", "a/path"], capture_output=True, text=True)
     assert out.returncode == 2 and "--set takes name=PATH" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_span_scale_finds_where_the_code_span_holds_the_truth():
+    """A zero code at the true scale with a fine texture printed into it, and one code direction that reaches the
+    truth at half that scale: the span holds the truth best at s = 0.5 (error ~0), worse at s = 1."""
+    spec = importlib.util.spec_from_file_location("depth_prior_eval", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    a = 1.5
+    H, W = 24, 32
+    v, u = torch.meshgrid(torch.linspace(0, 1, H, dtype=torch.float64), torch.linspace(0, 1, W, dtype=torch.float64),
+                          indexing="ij")
+    depth = 2.0 + 3.0 * v + 0.5 * u  # a floor-like ramp, metres
+    depth[0, :4] = 0.0  # invalid pixels are ignored
+    texture = 0.02 * torch.sign(torch.sin(40 * u) * torch.sin(30 * v))  # proximity the truth does not have
+    prox0 = a / (depth + a) + texture
+    reach = a / (0.5 * depth + a) - prox0  # the one direction: the truth at half scale
+    jac = reach[None]
+    fits = module.span_fit(prox0, jac, depth, a)
+    assert set(fits) == set(module.SPAN_SCALES)
+    assert min(fits, key=fits.get) == 0.5 and fits[0.5] < 1e-3 < fits[1.0]
+    r = module.span_summary([fits, fits, fits])
+    assert r["span_scale"] == 0.5 and r["span_error"] < 1e-3 and r["span_error_1"] == fits[1.0]
+    assert module.span_summary([]) == {}
