@@ -8,7 +8,7 @@ walk, a 300-frame hand-held, a noisy corridor, a walk at 30 frames/s, a fast tur
 blank wall), with the network's depth, four of them again with the dataset's own depth (``--depth-model
 standin``), which separates the tracker from the network, and the walk towards a blank wall with the network's
 code Jacobian but the dataset's depth at the zero code (``--depth-model true-prior``), which separates the
-network's prior from the code's span.
+network's zero-code depth from the rest.
 
 The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 40 minutes on one
 core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DATA --out OUT/NAME -q`` plus the

@@ -60,9 +60,11 @@ def true_prior_depth_model(depth_model: DepthModelFactory) -> DepthModelFactory:
     :func:`fill_depth_holes`; the coarser levels its image pyramid, as the stand-in's). Needs frames with depth.
 
     The stand-in replaces the code's Jacobian as well; this keeps the network's, so a run that holds here and
-    fails with the network says that the network's zero-code depth is what fails, not the code's span, the
-    tracker or the window (docs/results/slam_table.md, twentieth session: the generator's nine walk and corridor
-    runs end within 0.62% of their paths this way, eight of them at 1.43-4.02% with the network's zero code)."""
+    fails with the network says that the tracker and the window hold and the network's zero-code depth loses the
+    run (with it wrong, the code must correct it, and where the span holds the corrected shape sets the map's
+    scale: ``scripts/depth_prior_eval.py --span``). Measured (docs/results/slam_table.md, twentieth session): the
+    generator's nine walk and corridor runs end within 0.62% of their paths this way, eight of them at
+    1.43-4.02% with the network's zero code."""
 
     def decode(frame: Frame) -> LinearDecoder:
         filled = _measured_depth(frame, "true-prior")
