@@ -60,6 +60,14 @@ DEFAULT_SETS = {
 }
 
 
+def depth_of(prox: torch.Tensor, a: float) -> torch.Tensor:
+    """Eq. 4 inverted, ``a (1 - p) / p``, with p clamped to (1e-6, 1 - 1e-6) so that every prediction or fit,
+    even one that leaves (0, 1), has a finite positive depth to compare (``prox_to_depth`` maps 0 to the invalid
+    depth 0 instead)."""
+    p = prox.clamp(1e-6, 1 - 1e-6)
+    return a * (1.0 - p) / p
+
+
 class PriorStats:
     """Pooled sums over valid pixels: zero-code proximity errors, ground-truth proximity moments and the
     predicted / true depth ratios (kept for the median)."""
@@ -78,7 +86,7 @@ class PriorStats:
         self.se += float((p - g).square().sum())
         self.s1 += float(g.sum())
         self.s2 += float(g.square().sum())
-        d_pred = a * (1.0 - p.clamp(1e-6, 1 - 1e-6)) / p.clamp(1e-6, 1 - 1e-6)  # Eq. 4 inverted
+        d_pred = depth_of(p, a)
         ratio = d_pred / depth_gt[valid].double()
         self.ratios.append(ratio.float())
         # per frame: the predicted depth scaled by its median ratio to the ground truth
@@ -121,15 +129,14 @@ def span_fit(prox0: torch.Tensor, jac: torch.Tensor, depth_gt: torch.Tensor, a: 
     p0 = prox0.double()[valid]
     J = jac.double()[:, valid]  # (C, N)
     d = depth_gt.double()[valid]
-    d0 = a * (1.0 - p0.clamp(1e-6, 1 - 1e-6)) / p0.clamp(1e-6, 1 - 1e-6)  # Eq. 4 inverted
+    d0 = depth_of(p0, a)
     m = torch.exp(torch.median(torch.log(d0 / d)))
     A = J @ J.T + ridge * J.shape[1] * torch.eye(J.shape[0], dtype=torch.float64)
     out = {}
     for s in scales:
         target = d * m * s
         c = torch.linalg.solve(A, J @ (a / (target + a) - p0))
-        p = (p0 + J.T @ c).clamp(1e-6, 1 - 1e-6)
-        err = torch.log(a * (1.0 - p) / p / target)
+        err = torch.log(depth_of(p0 + J.T @ c, a) / target)
         out[s] = float((err - err.median()).square().mean().sqrt())
     return out
 
