@@ -129,6 +129,14 @@ class TrainConfig:
     # Weight of the NLL of the zero-code prediction D(I, 0) (not in the paper; see codeslam.network.loss: without
     # it the image-only prediction trains far slower than the reconstruction); 0 disables it.
     zero_code_weight: float = 1.0
+    # Scale-equivariant code span (not in the paper): the code path's targets (the encoder's input and the
+    # reconstruction) at each image's depth times exp(u), u uniform in [-x, x], the zero code's at the true depth.
+    # The window fits keyframe codes to images, which fix the shape and not the scale, so where the decoder's
+    # span holds a room's shape only at the training rooms' depth, a monocular map drifts there
+    # (docs/results/depth_prior_ablation.md, "Where the code's span holds the truth"). Measured on a lent GPU
+    # (x = 0.7, ~2,800 x 128 images from random weights): the span's best scale on the walks 0.4-0.5 -> 0.5-0.6,
+    # the SLAM maps' scale unchanged, so 0 = off stays the default ("Scale-augmented code targets", same file).
+    code_scale: float = 0.0
     # Seed of the initial weights, the data order (per epoch) and the augmentation/sampling noise (per step).
     seed: int = 0
     # Fraction of every data source (the last frames of each shard / sequence) held out for validation.
@@ -190,7 +198,7 @@ class TrainConfig:
         if not 0 <= self.flip_prob <= 1:
             raise ConfigError(f"train.flip_prob must lie in [0, 1], got {self.flip_prob}")
         for name in ("brightness", "contrast", "gamma", "noise_std", "checkpoint_minutes", "exposure", "vignetting",
-                     "sensor_noise", "rolling_shutter", "distortion", "border"):
+                     "sensor_noise", "rolling_shutter", "distortion", "border", "code_scale"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"train.{name} must be >= 0, got {getattr(self, name)}")
         from codeslam.network.camera_effects import BLUR_TAPS

@@ -90,12 +90,14 @@ def network_loss(
     kl_weight: float,
     mu_zero: list[torch.Tensor] | None = None,
     zero_code_weight: float = 0.0,
+    prox_zero: list[torch.Tensor] | None = None,
 ) -> LossParts:
     """The loss of one batch (see the module docstring).
 
     mu, b, prox: NUM_LEVELS lists of (B, 1, H / 2^l, W / 2^l), finest first, ``prox`` 0 where invalid (as from
     :func:`proximity_pyramid`); code_mean, code_logvar: (B, C); mu_zero: like mu, decoded from the zero code,
-    needed when ``zero_code_weight`` > 0.
+    needed when ``zero_code_weight`` > 0; prox_zero: the zero code's target when it is not ``prox`` (the code
+    path's targets scaled, ``train.code_scale``).
     """
     nll, nll_levels = pyramid_nll(mu, b, prox)
     kl = kl_to_standard_normal(code_mean, code_logvar).mean()
@@ -103,7 +105,8 @@ def network_loss(
     total = nll + kl_weight * kl / (H * W)
     nll_zero = nll.new_zeros(())
     if mu_zero is not None:
-        nll_zero, _ = pyramid_nll(mu_zero, [s.detach() for s in b], prox)
+        target = prox if prox_zero is None else prox_zero
+        nll_zero, _ = pyramid_nll(mu_zero, [s.detach() for s in b], target)
         total = total + zero_code_weight * nll_zero
     elif zero_code_weight > 0:
         raise ValueError("zero_code_weight > 0 needs mu_zero (forward with decode_zero=True)")

@@ -281,9 +281,17 @@ def train_step(
     noise = torch.randn(len(idx), ncfg.code_size, generator=gen).to(device)  # eps of the reparameterisation
     image = image.to(device).contiguous(memory_format=torch.channels_last)  # (B, Cin, H, W)
     prox = proximity_pyramid(depth.to(device), ncfg.avg_depth)  # NUM_LEVELS x (B, 1, H / 2^l, W / 2^l)
+    prox_zero = None
+    if tcfg.code_scale > 0:  # the code path sees each depth at another scale, the zero code the truth
+        u = (2 * torch.rand(len(idx), generator=gen) - 1) * tcfg.code_scale
+        prox_zero = prox
+        scaled = depth * torch.exp(u).to(depth.device).view(-1, 1, 1, 1)  # (B, 1, H, W), holes stay 0
+        prox = proximity_pyramid(scaled.to(device), ncfg.avg_depth)
     zero_w = tcfg.zero_code_weight
     out = net(image, prox[0], sample=True, noise=noise, decode_zero=zero_w > 0)
-    parts = network_loss(out.mu, out.b, prox, out.code_mean, out.code_logvar, kl_weight, out.mu_zero, zero_w)
+    parts = network_loss(
+        out.mu, out.b, prox, out.code_mean, out.code_logvar, kl_weight, out.mu_zero, zero_w, prox_zero
+    )
     opt.zero_grad(set_to_none=True)
     parts.total.backward()
     opt.step()

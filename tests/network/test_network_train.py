@@ -196,3 +196,29 @@ def test_fine_tuning_starts_from_the_given_weights(tmp_path, tiny_shards, tiny_y
     save_weights(tmp_path / "wrong.safetensors", CodeNetwork(wrong))
     assert _train_cli(tiny_shards, tmp_path / "bad", tiny_yaml, "--steps", "1", "--init",
                       str(tmp_path / "wrong.safetensors")) != 0
+
+
+def test_code_scale_moves_only_the_code_paths_targets(tiny_config, synthetic_frames):
+    """``train.code_scale``: the same step (weights, augmentation, code sample) gives the same zero-code NLL, a
+    different reconstruction NLL, and with code_scale 0 the step of before to the bit."""
+    from codeslam.network.data import DEPTH_UNITS_PER_M, FrameStore
+    from codeslam.network.train import train_step
+
+    images, depth = synthetic_frames(4, 32, 32)
+    store = FrameStore(images, (depth * DEPTH_UNITS_PER_M).round().to(torch.uint16), [("s", 0, 4)])
+    ncfg, idx = tiny_config(), torch.arange(4)
+
+    def step(code_scale: float):
+        torch.manual_seed(0)
+        net = CodeNetwork(ncfg).train()
+        cfg = RunConfig(ncfg, TrainConfig(code_scale=code_scale, exposure=0.5))
+        opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+        parts = train_step(net, opt, store, idx, 3, cfg, 1e-3, 1.0, 0, torch.device("cpu"))
+        return parts._replace(total=parts.total.detach())
+
+    plain, again, scaled = step(0.0), step(0.0), step(0.7)
+    assert float(plain.total) == float(again.total)
+    assert float(scaled.nll_zero) == pytest.approx(float(plain.nll_zero), rel=1e-6)
+    assert abs(float(scaled.nll) - float(plain.nll)) > 1e-3
+    with pytest.raises(Exception, match="code_scale"):
+        TrainConfig(code_scale=-0.1)
