@@ -9,11 +9,13 @@
 # both cosine schedules end inside the budget.
 #
 # Usage (repository root): OUT=DIR REAL=DIR/real_split/train scripts/issue13/gpu.sh
-# Env: DEVICE (cuda), SYNTH_S (seconds of rendering, 160), TRAIN_S (seconds of training, 300), WORKERS (cores),
+# Env: RUNS (configs scripts/issue13/gpu_RUN.yaml, trained side by side; "finetune scratch"), DEVICE (cuda),
+#      SYNTH_S (seconds of rendering, 160), TRAIN_S (seconds of training, 300), WORKERS (cores),
 #      VIEWS_PER_CORE_S (rendering rate assumed per core, 11), BATCH (images per step, 128), CAL_STEPS (100),
 #      WORK (/tmp/issue13_gpu).
 set -u
 cd "$(dirname "$0")/../.."
+export PYTHONPATH="$PWD${PYTHONPATH:+:$PYTHONPATH}"  # the scripts import codeslam from this checkout
 DEVICE=${DEVICE:-cuda}
 SYNTH_S=${SYNTH_S:-160}
 TRAIN_S=${TRAIN_S:-300}
@@ -22,6 +24,7 @@ RATE=${VIEWS_PER_CORE_S:-11}
 BATCH=${BATCH:-128}
 CAL_STEPS=${CAL_STEPS:-100}
 WORK=${WORK:-/tmp/issue13_gpu}
+RUNS=${RUNS:-finetune scratch}
 OUT=${OUT:?OUT: where the weights and logs go}
 REAL=${REAL:?REAL: the real fine-tuning halves (scripts/split_real_rgbd.py --out D: D/train)}
 CS="python3 -m codeslam"
@@ -56,13 +59,13 @@ log "shards: v1 $(ls "$WORK"/v1/shard_*.safetensors 2>/dev/null | wc -l), v3 $(l
 DATA="$WORK/v1 $WORK/v3 $REAL/tum_fr3_cabinet_kf:8 $REAL/realsense_room_floorlevel_felixchenfy:8 $REAL/redwood_livingroom_synthetic_open3d:8"
 
 # calibration: both runs at once for CAL_STEPS steps, each rate read from its log (its last 50-step window)
-for r in finetune scratch; do
+for r in $RUNS; do
   $CS train --data $DATA --out "$WORK/cal_$r" --config "scripts/issue13/gpu_$r.yaml" --device "$DEVICE" \
       --batch-size "$BATCH" --steps 100000 --stop-after "$CAL_STEPS" --no-progress > "$WORK/cal_$r.log" 2>&1 &
 done
 wait
 declare -A steps
-for r in finetune scratch; do
+for r in $RUNS; do
   rate=$(python3 -c "
 import csv
 rows = list(csv.DictReader(open('$WORK/cal_$r/log.csv')))
@@ -72,15 +75,18 @@ print(rows[-1]['images_per_s'])" 2>/dev/null)
   tail -n 3 "$WORK/cal_$r.log" >> "$OUT/driver.log"
 done
 
-for r in finetune scratch; do
+for r in $RUNS; do
   run_for $(( TRAIN_S + 40 )) $CS train --data $DATA --out "$WORK/$r" --config "scripts/issue13/gpu_$r.yaml" \
       --device "$DEVICE" --batch-size "$BATCH" --steps "${steps[$r]}" --no-progress > "$WORK/$r.log" 2>&1 &
 done
 wait
-for r in finetune scratch; do
+for r in $RUNS; do
   tail -n 2 "$WORK/$r.log" >> "$OUT/driver.log"
   python3 scripts/export_weights.py "$WORK/$r" "$OUT/$r.safetensors" >> "$OUT/driver.log" 2>&1
-  cp "$WORK/$r/log.csv" "$OUT/${r}_log.csv" 2>/dev/null
-  cp "$WORK/$r/val.csv" "$OUT/${r}_val.csv" 2>/dev/null
+  mkdir -p "$WORK/logs"
+  cp "$WORK/$r/log.csv" "$WORK/logs/${r}_log.csv" 2>/dev/null
+  cp "$WORK/$r/val.csv" "$WORK/logs/${r}_val.csv" 2>/dev/null
 done
 log "done"
+# the lease returns at most 8 files: the weights, and every log in one archive
+cp "$OUT/driver.log" "$WORK/logs/" && tar -cf "$OUT/logs.tar" -C "$WORK" logs
