@@ -9,9 +9,9 @@ Sets (name=PATH[@FRAMES], FRAMES in the ``--frames`` grammar; shard folders take
 
 * ``tum`` and ``hololens``: ``../shared/data`` frames 0:180:4 (issue 13's measurement), never trained on;
 * ``cabinet``, ``realsense``, ``redwood``, ``office``: the validation halves of ``../shared/train_data``
-  (``scripts/split_real_rgbd.py``);
-* ``gen_v1``, ``gen_v2``, ``gen_v3``: held-out generator shards of data versions 1, 2 and 3 (seeds 4001, 4000
-  and 4002).
+  (``scripts/split_real_rgbd.py``), written under ``--data-dir`` on first use;
+* ``gen_v1`` ... ``gen_v4``: 256 held-out generator views of data versions 1-4 (seeds 4001, 4000, 4002, 4003),
+  rendered under ``--data-dir`` on first use (``codeslam synth --train``, about a minute each on one core).
 
 Also reported: ``si_rmse``, the proximity RMSE after scaling every frame's predicted depth by its median ratio to
 the ground truth (the error of the depth's shape alone; what self-supervised adaptation can improve), and how much
@@ -30,10 +30,11 @@ error, ``span_error`` that error and ``span_error_1`` the error at ``s = 1``. SL
 images, which fix the shape and not the scale, so a span that holds the truth's shape best at half the zero
 code's scale lets the map shrink to half (docs/results/slam_table.md, twentieth session: the generator's five
 walks, span scale 0.5, end their SLAM runs at 0.44-0.60 of their zero code's scale; TUM and the HoloLens walk,
-span scale 1, within 10% of it).
+span scale 1, within 10% of it). It is a fit to the truth, not a prediction of SLAM: networks trained with
+scaled code targets raised it on the walks (0.5 -> 0.6) and their maps' scale did not move (twenty-first session).
 
     python scripts/depth_prior_eval.py --weights W [--weights W2 ...] [--set name=PATH[@FRAMES] ...]
-        [--span] [--json OUT.json] [--markdown OUT.md] [--threads 1]
+        [--span] [--json OUT.json] [--markdown OUT.md] [--threads 1] [--data-dir DIR]
 """
 
 from __future__ import annotations
@@ -41,23 +42,51 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import subprocess
+import sys
 import time
 from pathlib import Path
 
 import torch
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-DEFAULT_SETS = {
-    "tum": f"{SHARED}/data/tum_fr1_rpy@0:180:4",
-    "hololens": f"{SHARED}/data/hololens_dvmvs@0:180:4",
-    "cabinet": "/work/train_data/real_split/val/tum_fr3_cabinet_kf",
-    "realsense": "/work/train_data/real_split/val/realsense_room_floorlevel_felixchenfy",
-    "redwood": "/work/train_data/real_split/val/redwood_livingroom_synthetic_open3d",
-    "office": "/work/train_data/real_split/val/tum_fr3_office_single_open3d",
-    "gen_v1": "/work/train_data/val128_v1",
-    "gen_v2": "/work/train_data/val128_v2",
-    "gen_v3": "/work/train_data/val128_v3",
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+#: real validation halves: set name -> folder of ../shared/train_data (split by scripts/split_real_rgbd.py)
+REAL_SETS = {
+    "cabinet": "tum_fr3_cabinet_kf",
+    "realsense": "realsense_room_floorlevel_felixchenfy",
+    "redwood": "redwood_livingroom_synthetic_open3d",
+    "office": "tum_fr3_office_single_open3d",
 }
+#: held-out generator views: set name -> (data version, seed)
+GEN_SETS = {"gen_v1": (1, 4001), "gen_v2": (2, 4000), "gen_v3": (3, 4002), "gen_v4": (4, 4003)}
+GEN_VIEWS = 256
+
+
+def default_sets(data_dir: Path) -> dict[str, str]:
+    """The default sets (name -> PATH[@FRAMES]); the real and generator ones live under ``data_dir``."""
+    sets = {"tum": f"{SHARED}/data/tum_fr1_rpy@0:180:4", "hololens": f"{SHARED}/data/hololens_dvmvs@0:180:4"}
+    sets |= {name: str(data_dir / "real_split" / "val" / folder) for name, folder in REAL_SETS.items()}
+    sets |= {name: str(data_dir / f"val128_v{version}") for name, (version, _) in GEN_SETS.items()}
+    return sets
+
+
+def prepare_set(name: str, path: Path, data_dir: Path, views: int = GEN_VIEWS) -> bool:
+    """Write a missing default set at ``path``: a generator set rendered with its seed, the real validation
+    halves split from ``../shared/train_data``. False when it cannot be made here (no source)."""
+    if name in GEN_SETS:
+        version, seed = GEN_SETS[name]
+        print(f"rendering {name}: {views} views of data version {version}, seed {seed} -> {path}", flush=True)
+        cmd = [sys.executable, "-m", "codeslam", "synth", str(path), "--train", "--views", str(views),
+               "--views-per-scene", "16", "--shard-size", str(views), "--size", "128x96", "--seed", str(seed),
+               "--data-version", str(version), "--workers", "1"]
+        return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True).returncode == 0 and path.exists()
+    if name in REAL_SETS and (SHARED / "train_data").is_dir():
+        out = data_dir / "real_split"
+        print(f"splitting {SHARED / 'train_data'} -> {out}", flush=True)
+        cmd = [sys.executable, str(REPO / "scripts" / "split_real_rgbd.py"), "--out", str(out)]
+        return subprocess.run(cmd, capture_output=True, text=True).returncode == 0 and path.exists()
+    return False
 
 
 def depth_of(prox: torch.Tensor, a: float) -> torch.Tensor:
@@ -220,11 +249,14 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--markdown", type=Path, default=None)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--data-dir", type=Path, default=REPO / "data_cache" / "depth_prior_eval",
+                    help="where the real and generator sets are written on first use")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     from codeslam.depthmodel import DepthModel
 
-    sets = dict(DEFAULT_SETS)
+    defaults = default_sets(args.data_dir)
+    sets = dict(defaults)
     if args.only:
         only = args.only.split(",")
         unknown = sorted(set(only) - sets.keys())
@@ -245,7 +277,8 @@ def main() -> None:
         results[w] = {}
         for name, spec in sets.items():
             path, _, frames = spec.partition("@")
-            if not Path(path).exists():
+            if not Path(path).exists() and not (defaults.get(name) == spec
+                                                 and prepare_set(name, Path(path), args.data_dir)):
                 print(f"skip {name}: {path} not found", flush=True)
                 continue
             t0 = time.perf_counter()

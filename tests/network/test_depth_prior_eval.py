@@ -83,3 +83,22 @@ def test_span_scale_finds_where_the_code_span_holds_the_truth():
     r = module.span_summary([fits, fits, fits])
     assert r["span_scale"] == 0.5 and r["span_error"] < 1e-3 and r["span_error_1"] == fits[1.0]
     assert module.span_summary([]) == {}
+
+
+def test_generator_sets_are_rendered_where_the_defaults_point(tmp_path):
+    """A missing held-out generator set is rendered under --data-dir with its data version and seed (the figures
+    of docs/results come from these sets, so a fresh clone must be able to make them); an unknown set is not."""
+    spec = importlib.util.spec_from_file_location("depth_prior_eval", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    sets = module.default_sets(tmp_path)
+    assert sets["gen_v3"] == str(tmp_path / "val128_v3")
+    assert sets["cabinet"] == str(tmp_path / "real_split" / "val" / "tum_fr3_cabinet_kf")
+    path = Path(sets["gen_v3"])
+    assert module.prepare_set("gen_v3", path, tmp_path, views=16)
+    from safetensors import safe_open
+
+    with safe_open(str(next(path.glob("shard_*.safetensors"))), "pt") as f:
+        meta = f.metadata()
+    assert (meta["seed"], meta["data_version"], meta["views"]) == ("4002", "3", "16")
+    assert not module.prepare_set("mine", tmp_path / "mine", tmp_path)
