@@ -245,7 +245,7 @@ def _print_summary(s: dict, out: Path) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    from codeslam.report.run import mapping_text, trajectory_text
+    from codeslam.report.run import map_scale_text, mapping_text, trajectory_text
 
     table = Table(title=escape(f"codeslam slam -> {out}"), show_header=False)
     table.add_column("key", style="bold")
@@ -264,6 +264,8 @@ def _print_summary(s: dict, out: Path) -> None:
         rows.append(("rolling shutter", _readout_text(rs)))
     if (mapping := mapping_text(s)) is not None:
         rows.append(("mapping", mapping))
+    if (scale := map_scale_text(s)) is not None:
+        rows.append(("map scale", scale))
     if s.get("trajectory_smoothing_s"):
         rows.append(("trajectory", trajectory_text(s["trajectory_smoothing_s"])))
     if "ate_se3_rmse" in s:

@@ -11,7 +11,15 @@ import numpy as np
 
 from codeslam.io import atomic_write
 from codeslam.report import figures as F
-from codeslam.report.run import REPORT_FILE, RunFiles, frame_statuses, load_run, mapping_text, trajectory_text
+from codeslam.report.run import (
+    REPORT_FILE,
+    RunFiles,
+    frame_statuses,
+    load_run,
+    map_scale_text,
+    mapping_text,
+    trajectory_text,
+)
 
 #: Statuses of frames whose tracking failed (the pose is the motion model's prediction).
 FAILED_STATUSES = ("predicted", "failed")
@@ -90,6 +98,8 @@ def run_info_rows(run: RunFiles) -> list[tuple[str, str]]:
         rows.append(("settings", str(s["settings"])))
     if (mapping := mapping_text(s)) is not None:
         rows.append(("mapping", mapping))
+    if (scale := map_scale_text(s)) is not None:
+        rows.append(("map scale", scale))
     if s.get("trajectory_smoothing_s"):
         rows.append(("trajectory", trajectory_text(s["trajectory_smoothing_s"])))
     return rows

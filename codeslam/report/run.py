@@ -185,6 +185,27 @@ def mapping_text(summary: dict) -> str | None:
     return text
 
 
+#: A map whose keyframes end outside this range of the network's zero-code depth gets the summary's hint.
+MAP_SCALE_HINT = (0.67, 1.5)
+
+
+def map_scale_text(summary: dict) -> str | None:
+    """The summary's line on where the window left the map's scale (``result.json``'s ``map_scale``), with a hint
+    when it is far from the network's prediction; None for a run written before it or without a zero code."""
+    m = summary.get("map_scale")
+    if not isinstance(m, dict):
+        return None
+    r = m["depth_over_prior"]
+    text = f"keyframe depths {r:.2f} x the network's zero-code prediction (median over {m['keyframes']} keyframes)"
+    if m.get("depth_over_truth") is not None:
+        text += f", {m['depth_over_truth']:.2f} x the dataset's depth"
+    lo, hi = MAP_SCALE_HINT
+    if not lo <= r <= hi:
+        text += ("; the window moved the map's scale away from the network's (monocular scale is held only by "
+                 "its prior)")
+    return text
+
+
 def trajectory_text(smoothing_s: float) -> str:
     """The summary's line on how ``trajectory.txt`` was written (``result.json``'s ``trajectory_smoothing_s``)."""
     return (f"positions smoothed over the whole run (a spline, time scale {smoothing_s:g} s); rotations, keyframes "

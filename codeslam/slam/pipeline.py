@@ -195,6 +195,7 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
         "window_rollbacks": sum(bool(r.window is not None and r.window.rejected) or bool(r.rolled_back)
                                 for r in res),
         "mapping_statistics": mapping_statistics(res),
+        "map_scale": map_scale(run.keyframes),
     }
     if run.readout is not None:
         out["rolling_shutter"] = run.readout
@@ -222,6 +223,34 @@ def mapping_statistics(results: list[FrameResult]) -> dict:
         "median_iterations": float(np.median(iterations)) if iterations else 0.0,
         "refused_busy": sum(r.keyframe is not None and r.keyframe.reason == MAPPING_BUSY for r in results),
     }
+
+
+def map_scale(keyframes: list[MapKeyframe]) -> dict | None:
+    """Where the window left the map's scale: per keyframe the median over its pixels of its depth after the
+    window over the network's zero-code depth (and over the dataset's depth, where it has one), the median of
+    those over the keyframes; None without a zero-code depth. Monocular scale is held only by the network's
+    prior, so a ratio far from 1 says the window fitted the codes at another scale: measured on the generator's
+    walks, 0.44-0.55, the map at half its true size (docs/results/slam_table.md, twenty-first session). A user
+    without ground truth sees it here."""
+
+    def median_ratio(other: str) -> list[float]:
+        out = []
+        for k in keyframes:
+            ref = getattr(k, other)
+            if ref is None:
+                continue
+            d, ref = k.depth_map().detach().cpu().float(), ref.detach().cpu().float()
+            ok = torch.isfinite(d) & (d > 0) & torch.isfinite(ref) & (ref > 0)
+            if bool(ok.any()):
+                out.append(float((d[ok] / ref[ok]).median()))
+        return out
+
+    prior = median_ratio("depth_zero")
+    if not prior:
+        return None
+    truth = median_ratio("depth_gt")
+    return {"keyframes": len(prior), "depth_over_prior": float(np.median(prior)),
+            "depth_over_truth": float(np.median(truth)) if truth else None}
 
 
 def failure_kind(reason: str) -> str:

@@ -6,6 +6,7 @@ end-to-end report of a real run, opened in a browser, is tests/report/test_repor
 from __future__ import annotations
 
 import csv
+import html
 import json
 import math
 import re
@@ -241,3 +242,22 @@ def test_the_mapping_line_says_when_parallel_mapping_fell_behind(tmp_path):
     (root / "result.json").write_text(json.dumps({**s, "mapping": "parallel", "mapping_statistics": behind}))
     assert text in build_html(load_run(root))
     assert "window solves" not in build_html(load_run(_make_run(tmp_path / "old")))  # a run from before it
+
+
+def test_the_map_scale_line_says_when_the_window_left_the_networks_scale(tmp_path):
+    """``map_scale``: keyframe depths over the network's zero code (and the dataset's depth); the hint only
+    outside MAP_SCALE_HINT, nothing for a run from before it."""
+    from codeslam.report.run import map_scale_text
+
+    walk = {"keyframes": 49, "depth_over_prior": 0.5, "depth_over_truth": 0.46}
+    text = map_scale_text({"map_scale": walk})
+    assert text.startswith("keyframe depths 0.50 x the network's zero-code prediction (median over 49 keyframes)")
+    assert "0.46 x the dataset's depth" in text and "moved the map's scale away" in text
+    held = map_scale_text({"map_scale": {**walk, "depth_over_prior": 1.02, "depth_over_truth": None}})
+    assert held == "keyframe depths 1.02 x the network's zero-code prediction (median over 49 keyframes)"
+    assert map_scale_text({}) is None and map_scale_text({"map_scale": None}) is None
+    root = _make_run(tmp_path / "run")
+    s = json.loads((root / "result.json").read_text())
+    (root / "result.json").write_text(json.dumps({**s, "map_scale": walk}))
+    assert html.escape(text) in build_html(load_run(root))
+

@@ -77,6 +77,11 @@ def test_slam_cli_writes_a_tum_trajectory_and_a_summary(dataset, tmp_path, capsy
     assert summary["mapping"] == "sequential" and stats["window_solves"] == summary["keyframes"] - 1
     assert stats["cut_short"] == stats["refused_busy"] == 0 and stats["median_iterations"] >= 1
     assert f"sequential: {stats['window_solves']} window solves, median {stats['median_iterations']:g}" in text
+    # where the window left the map's scale, against the network's prediction and the dataset's depth
+    scale = summary["map_scale"]
+    assert scale["keyframes"] == summary["keyframes"] and 0 < scale["depth_over_prior"] < 10
+    assert 0 < scale["depth_over_truth"] < 10
+    assert f"keyframe depths {scale['depth_over_prior']:.2f} x the network's zero-code prediction" in text
 
 
 def test_the_summary_says_how_the_readout_was_chosen():

@@ -340,3 +340,22 @@ def test_depth_scale_prior_holds_each_frame_over_its_own_valid_pixels():
     assert torch.allclose(H[2 * C:, 2 * C:], torch.outer(J[0], J[0])) and torch.allclose(g[:C], J[1] * r[1])
     assert float(H[C:2 * C].abs().max()) == 0.0  # frame 1 is not held
     assert torch.allclose(prior.cost(state), 0.5 * r.square().sum())
+
+
+def test_map_scale_is_each_keyframes_median_ratio_to_its_prior_and_truth():
+    """``map_scale``: per keyframe the median of depth / zero-code depth over the pixels valid in both, then the
+    median over keyframes; the truth's likewise where a keyframe has it; None without any zero code."""
+    from types import SimpleNamespace
+
+    from codeslam.slam.pipeline import map_scale
+
+    def kf(depth, zero, gt=None):
+        return SimpleNamespace(depth_map=lambda: depth, depth_zero=zero, depth_gt=gt)
+
+    zero = torch.full((4, 5), 2.0)
+    zero[0, 0] = 0.0  # invalid in the prior: left out, not a ratio of infinity
+    half = torch.full((4, 5), 1.0)
+    gt = torch.full((4, 5), 4.0)
+    out = map_scale([kf(half, zero, gt), kf(0.5 * half, zero), kf(2 * half, zero, gt)])
+    assert out == {"keyframes": 3, "depth_over_prior": 0.5, "depth_over_truth": 0.375}
+    assert map_scale([kf(half, None)]) is None
