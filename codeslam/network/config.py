@@ -134,7 +134,7 @@ class TrainConfig:
     # The window fits keyframe codes to images, which fix the shape and not the scale, so where the decoder's
     # span holds a room's shape only at the training rooms' depth, a monocular map drifts there
     # (docs/results/depth_prior_ablation.md, "Where the code's span holds the truth"). Measured on a lent GPU
-    # (x = 0.7, ~2,800 x 128 images from random weights): the span's best scale on the walks 0.4-0.5 -> 0.5-0.6,
+    # (x = 0.7, ~2,800 steps of 128 images from random weights): the span's best scale on the walks 0.4-0.5 -> 0.5-0.6,
     # the SLAM maps' scale unchanged, so 0 = off stays the default ("Scale-augmented code targets", same file).
     code_scale: float = 0.0
     # Seed of the initial weights, the data order (per epoch) and the augmentation/sampling noise (per step).

@@ -1,12 +1,13 @@
 #!/bin/bash
-# Issue 13 on a lent GPU, as one timed command: render training data on the machine's cores, then train two
-# networks side by side on the GPU for a fixed wall-clock budget, and export both.
-#   fine-tune: the default (version 3) weights, continued on fresh data (gpu_finetune.yaml)
-#   scratch:   the same data from random weights (gpu_scratch.yaml)
+# Issue 13 on a lent GPU, as one timed command: render training data on the machine's cores, then train the
+# networks named in RUNS side by side on the GPU for a fixed wall-clock budget, and export each. By default:
+#   finetune: the default (version 3) weights, continued on fresh data (gpu_finetune.yaml)
+#   scratch:  the same data from random weights (gpu_scratch.yaml)
+# (gpu_*_scale.yaml: the same with the code path's targets scaled, train.code_scale.)
 # Data: generator versions 1 and 3 (seeds 1000 and 5000, as the default weights' card; more views than the CPU
 # run had) and the real fine-tuning halves of ../shared/train_data (scripts/split_real_rgbd.py), 8x each.
-# The step count of each run comes from its own rate measured in a short calibration with both running, so that
-# both cosine schedules end inside the budget.
+# The step count of each run comes from its own rate measured in a short calibration with all running, so that
+# every cosine schedule ends inside the budget.
 #
 # Usage (repository root): OUT=DIR REAL=DIR/real_split/train scripts/issue13/gpu.sh
 # Env: RUNS (configs scripts/issue13/gpu_RUN.yaml, trained side by side; "finetune scratch"), DEVICE (cuda),
@@ -58,7 +59,7 @@ tail -n 1 "$WORK/synth_v1.log" "$WORK/synth_v3.log" | tee -a "$OUT/driver.log"
 log "shards: v1 $(ls "$WORK"/v1/shard_*.safetensors 2>/dev/null | wc -l), v3 $(ls "$WORK"/v3/shard_*.safetensors 2>/dev/null | wc -l)"
 DATA="$WORK/v1 $WORK/v3 $REAL/tum_fr3_cabinet_kf:8 $REAL/realsense_room_floorlevel_felixchenfy:8 $REAL/redwood_livingroom_synthetic_open3d:8"
 
-# calibration: both runs at once for CAL_STEPS steps, each rate read from its log (its last 50-step window)
+# calibration: all runs at once for CAL_STEPS steps, each rate read from its log (its last 50-step window)
 for r in $RUNS; do
   $CS train --data $DATA --out "$WORK/cal_$r" --config "scripts/issue13/gpu_$r.yaml" --device "$DEVICE" \
       --batch-size "$BATCH" --steps 100000 --stop-after "$CAL_STEPS" --no-progress > "$WORK/cal_$r.log" 2>&1 &
