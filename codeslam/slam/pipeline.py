@@ -233,22 +233,20 @@ def map_scale(keyframes: list[MapKeyframe]) -> dict | None:
     walks, 0.44-0.55, the map at half its true size (docs/results/slam_table.md, twenty-first session). A user
     without ground truth sees it here."""
 
-    def median_ratio(other: str) -> list[float]:
-        out = []
-        for k in keyframes:
-            ref = getattr(k, other)
-            if ref is None:
-                continue
-            d, ref = k.depth_map().detach().cpu().float(), ref.detach().cpu().float()
+    prior: list[float] = []
+    truth: list[float] = []
+    for k in keyframes:
+        refs = [(out, r) for out, r in ((prior, k.depth_zero), (truth, k.depth_gt)) if r is not None]
+        if not refs:
+            continue
+        d = k.depth_map().detach().cpu().float()  # decoded once per keyframe
+        for out, ref in refs:
+            ref = ref.detach().cpu().float()
             ok = torch.isfinite(d) & (d > 0) & torch.isfinite(ref) & (ref > 0)
             if bool(ok.any()):
                 out.append(float((d[ok] / ref[ok]).median()))
-        return out
-
-    prior = median_ratio("depth_zero")
     if not prior:
         return None
-    truth = median_ratio("depth_gt")
     return {"keyframes": len(prior), "depth_over_prior": float(np.median(prior)),
             "depth_over_truth": float(np.median(truth)) if truth else None}
 

@@ -81,10 +81,10 @@ for r in $RUNS; do
       --device "$DEVICE" --batch-size "$BATCH" --steps "${steps[$r]}" --no-progress > "$WORK/$r.log" 2>&1 &
 done
 wait
+mkdir -p "$WORK/logs"
 for r in $RUNS; do
   tail -n 2 "$WORK/$r.log" >> "$OUT/driver.log"
   python3 scripts/export_weights.py "$WORK/$r" "$OUT/$r.safetensors" >> "$OUT/driver.log" 2>&1
-  mkdir -p "$WORK/logs"
   cp "$WORK/$r/log.csv" "$WORK/logs/${r}_log.csv" 2>/dev/null
   cp "$WORK/$r/val.csv" "$WORK/logs/${r}_val.csv" 2>/dev/null
 done

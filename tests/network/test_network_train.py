@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from codeslam.cli import main
+from codeslam.errors import ConfigError
 from codeslam.network.config import RunConfig, TrainConfig
 from codeslam.network.loss import network_loss, proximity_pyramid
 from codeslam.network.model import CodeNetwork
@@ -220,5 +221,5 @@ def test_code_scale_moves_only_the_code_paths_targets(tiny_config, synthetic_fra
     assert float(plain.total) == float(again.total)
     assert float(scaled.nll_zero) == pytest.approx(float(plain.nll_zero), rel=1e-6)
     assert abs(float(scaled.nll) - float(plain.nll)) > 1e-3
-    with pytest.raises(Exception, match="code_scale"):
+    with pytest.raises(ConfigError, match="code_scale"):
         TrainConfig(code_scale=-0.1)
