@@ -73,20 +73,24 @@ def default_sets(data_dir: Path) -> dict[str, str]:
 
 def prepare_set(name: str, path: Path, data_dir: Path, views: int = GEN_VIEWS) -> bool:
     """Write a missing default set at ``path``: a generator set rendered with its seed, the real validation
-    halves split from ``../shared/train_data``. False when it cannot be made here (no source)."""
+    halves split from ``../shared/train_data``. False when it cannot be made here (no source, or the command that
+    makes it failed: its last line of error output is printed)."""
     if name in GEN_SETS:
         version, seed = GEN_SETS[name]
         print(f"rendering {name}: {views} views of data version {version}, seed {seed} -> {path}", flush=True)
         cmd = [sys.executable, "-m", "codeslam", "synth", str(path), "--train", "--views", str(views),
                "--views-per-scene", "16", "--shard-size", str(views), "--size", "128x96", "--seed", str(seed),
                "--data-version", str(version), "--workers", "1"]
-        return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True).returncode == 0 and path.exists()
-    if name in REAL_SETS and (SHARED / "train_data").is_dir():
-        out = data_dir / "real_split"
-        print(f"splitting {SHARED / 'train_data'} -> {out}", flush=True)
-        cmd = [sys.executable, str(REPO / "scripts" / "split_real_rgbd.py"), "--out", str(out)]
-        return subprocess.run(cmd, capture_output=True, text=True).returncode == 0 and path.exists()
-    return False
+    elif name in REAL_SETS and (SHARED / "train_data").is_dir():
+        print(f"splitting {SHARED / 'train_data'} -> {data_dir / 'real_split'}", flush=True)
+        cmd = [sys.executable, str(REPO / "scripts" / "split_real_rgbd.py"), "--out", str(data_dir / "real_split")]
+    else:
+        return False
+    done = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    if done.returncode != 0:
+        lines = (done.stderr or done.stdout).strip().splitlines()
+        print(f"could not make {name}: {lines[-1] if lines else f'exit status {done.returncode}'}", flush=True)
+    return done.returncode == 0 and path.exists()
 
 
 def depth_of(prox: torch.Tensor, a: float) -> torch.Tensor:

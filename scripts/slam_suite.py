@@ -13,7 +13,8 @@ network's zero-code depth from the rest.
 The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 40 minutes on one
 core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DATA --out OUT/NAME -q`` plus the
 ``--`` arguments (``--threads 1`` by default, which makes the runs repeat to the byte and lets two share two
-cores). The table reads each run's ``result.json``:
+cores; ``--weights W`` goes to every run but the stand-in ones, whose depth is the dataset's). The table reads each
+run's ``result.json``:
 
     python scripts/slam_suite.py OUT [--seqs DIR] [--jobs 2] [--only NAME ...] [-- --threads 1 --config C.yaml]
     python scripts/slam_suite.py --table OUT [OUT2 ...]   # the table again; several folders side by side
@@ -114,9 +115,22 @@ def dataset_path(name: str, seqs: Path) -> Path:
     return SHARED / name
 
 
+def run_arguments(extra: tuple[str, ...], passthrough: list[str]) -> list[str]:
+    """A run's own arguments and the suite's ``--`` ones, less ``--weights W`` where the run takes its depth from
+    the dataset (``--depth-model standin`` refuses weights): ``-- --weights W`` compares networks on the network
+    runs and leaves the stand-in runs as they are."""
+    args = list(passthrough)
+    if "standin" in extra:
+        while "--weights" in args:
+            i = args.index("--weights")
+            del args[i:i + 2]
+        args = [a for a in args if not a.startswith("--weights=")]
+    return [*extra, *args]
+
+
 def run_one(name: str, data: Path, extra: tuple[str, ...], out: Path, passthrough: list[str]) -> str:
     folder = out / name
-    cmd = ["codeslam", "slam", str(data), "--out", str(folder), "-q", *extra, *passthrough]
+    cmd = ["codeslam", "slam", str(data), "--out", str(folder), "-q", *run_arguments(extra, passthrough)]
     start = time.perf_counter()
     with open(out / f"{name}.log", "w") as log:
         rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode

@@ -102,3 +102,18 @@ def test_generator_sets_are_rendered_where_the_defaults_point(tmp_path):
         meta = f.metadata()
     assert (meta["seed"], meta["data_version"], meta["views"]) == ("4002", "3", "16")
     assert not module.prepare_set("mine", tmp_path / "mine", tmp_path)
+
+
+def test_a_set_that_cannot_be_made_says_why_and_the_real_sets_are_the_split_folders(tmp_path, capsys):
+    """A failed rendering prints its command's last error line (it was swallowed before) and makes nothing; the
+    real validation sets name exactly the folders ``scripts/split_real_rgbd.py`` splits."""
+    spec = importlib.util.spec_from_file_location("depth_prior_eval", SCRIPT)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert not module.prepare_set("gen_v3", tmp_path / "v3", tmp_path, views=0)
+    assert "could not make gen_v3: codeslam: error: --views must be at least 1, got 0" in capsys.readouterr().out
+    assert not (tmp_path / "v3").exists()
+    split = importlib.util.spec_from_file_location("split_real_rgbd", SCRIPT.parent / "split_real_rgbd.py")
+    split_module = importlib.util.module_from_spec(split)
+    split.loader.exec_module(split_module)
+    assert sorted(module.REAL_SETS.values()) == sorted(split_module.TRAIN_FRAMES)
