@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
 
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 TUM_RPY = SHARED / "data" / "tum_fr1_rpy"
 HOLOLENS = SHARED / "data" / "hololens_dvmvs"
@@ -23,6 +26,24 @@ def hololens() -> Path:
     if not HOLOLENS.is_dir():
         pytest.skip("../shared/data/hololens_dvmvs is not present")
     return HOLOLENS
+
+
+@pytest.fixture(scope="session")
+def script():
+    """``script(name)``: the module ``scripts/NAME.py`` (the scripts are not a package), registered in
+    ``sys.modules`` while it runs, as its dataclasses look their module up."""
+
+    def load(name: str):
+        spec = importlib.util.spec_from_file_location(name, SCRIPTS / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        try:
+            spec.loader.exec_module(module)
+        finally:
+            del sys.modules[name]
+        return module
+
+    return load
 
 
 def pytest_configure(config):

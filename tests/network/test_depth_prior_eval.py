@@ -2,7 +2,6 @@
 the best constant, the median depth ratio, the shape error after each frame's scale and the spread and jump of
 the per-frame scales."""
 
-import importlib.util
 import math
 from pathlib import Path
 
@@ -11,21 +10,16 @@ import torch
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "depth_prior_eval.py"
 
 
-def _prior_stats():
-    spec = importlib.util.spec_from_file_location("depth_prior_eval", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.PriorStats
 
 
-def test_per_frame_scales_give_spread_and_jump_and_no_shape_error():
+def test_per_frame_scales_give_spread_and_jump_and_no_shape_error(script):
     a = 1.5
     gen = torch.Generator().manual_seed(0)
     depth = 0.5 + 3.0 * torch.rand(4, 12, 16, generator=gen)  # (frames, H, W) metres
     depth[:, 0, :3] = 0.0  # invalid pixels are ignored
     scales = torch.tensor([0.5, 1.0, 2.0, 1.0])
     pred = depth * scales[:, None, None]
-    stats = _prior_stats()()
+    stats = script("depth_prior_eval").PriorStats()
     stats.add(a / (pred[:2] + a), depth[:2], a)  # two batches, in order: the jump runs across them
     stats.add(a / (pred[2:] + a), depth[2:], a)
     r = stats.result()
@@ -37,15 +31,16 @@ def test_per_frame_scales_give_spread_and_jump_and_no_shape_error():
     assert 0.5 <= r["median_depth_ratio"] <= 2.0
 
 
-def test_exact_prediction_and_constant_prediction():
+def test_exact_prediction_and_constant_prediction(script):
     a = 1.5
     depth = torch.linspace(0.5, 4.0, 2 * 8 * 8).reshape(2, 8, 8)
-    stats = _prior_stats()()
+    PriorStats = script("depth_prior_eval").PriorStats
+    stats = PriorStats()
     stats.add(a / (depth + a), depth, a)
     r = stats.result()
     assert r["zero_rmse"] < 1e-6 and r["ratio"] < 1e-5 and math.isclose(r["median_depth_ratio"], 1.0, rel_tol=1e-5)
     assert r["scale_spread"] < 1e-6 and r["scale_jump"] < 1e-6
-    const = _prior_stats()()
+    const = PriorStats()
     g = a / (depth + a)
     const.add(torch.full_like(depth, float(g.double().mean())), depth, a)  # the best single constant
     assert math.isclose(const.result()["ratio"], 1.0, rel_tol=1e-4)
@@ -61,12 +56,10 @@ def test_an_unknown_or_malformed_set_is_a_one_line_error():
     assert out.returncode == 2 and "--set takes name=PATH" in out.stderr and "Traceback" not in out.stderr
 
 
-def test_span_scale_finds_where_the_code_span_holds_the_truth():
+def test_span_scale_finds_where_the_code_span_holds_the_truth(script):
     """A zero code at the true scale with a fine texture printed into it, and one code direction that reaches the
     truth at half that scale: the span holds the truth best at s = 0.5 (error ~0), worse at s = 1."""
-    spec = importlib.util.spec_from_file_location("depth_prior_eval", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = script("depth_prior_eval")
     a = 1.5
     H, W = 24, 32
     v, u = torch.meshgrid(torch.linspace(0, 1, H, dtype=torch.float64), torch.linspace(0, 1, W, dtype=torch.float64),
@@ -85,12 +78,10 @@ def test_span_scale_finds_where_the_code_span_holds_the_truth():
     assert module.span_summary([]) == {}
 
 
-def test_generator_sets_are_rendered_where_the_defaults_point(tmp_path):
+def test_generator_sets_are_rendered_where_the_defaults_point(tmp_path, script):
     """A missing held-out generator set is rendered under --data-dir with its data version and seed (the figures
     of docs/results come from these sets, so a fresh clone must be able to make them); an unknown set is not."""
-    spec = importlib.util.spec_from_file_location("depth_prior_eval", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = script("depth_prior_eval")
     sets = module.default_sets(tmp_path)
     assert sets["gen_v3"] == str(tmp_path / "val128_v3")
     assert sets["cabinet"] == str(tmp_path / "real_split" / "val" / "tum_fr3_cabinet_kf")
@@ -104,16 +95,11 @@ def test_generator_sets_are_rendered_where_the_defaults_point(tmp_path):
     assert not module.prepare_set("mine", tmp_path / "mine", tmp_path)
 
 
-def test_a_set_that_cannot_be_made_says_why_and_the_real_sets_are_the_split_folders(tmp_path, capsys):
+def test_a_set_that_cannot_be_made_says_why_and_the_real_sets_are_the_split_folders(tmp_path, capsys, script):
     """A failed rendering prints its command's last error line (it was swallowed before) and makes nothing; the
     real validation sets name exactly the folders ``scripts/split_real_rgbd.py`` splits."""
-    spec = importlib.util.spec_from_file_location("depth_prior_eval", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = script("depth_prior_eval")
     assert not module.prepare_set("gen_v3", tmp_path / "v3", tmp_path, views=0)
     assert "could not make gen_v3: codeslam: error: --views must be at least 1, got 0" in capsys.readouterr().out
     assert not (tmp_path / "v3").exists()
-    split = importlib.util.spec_from_file_location("split_real_rgbd", SCRIPT.parent / "split_real_rgbd.py")
-    split_module = importlib.util.module_from_spec(split)
-    split.loader.exec_module(split_module)
-    assert sorted(module.REAL_SETS.values()) == sorted(split_module.TRAIN_FRAMES)
+    assert sorted(module.REAL_SETS.values()) == sorted(script("split_real_rgbd").TRAIN_FRAMES)

@@ -2,26 +2,9 @@
 from the dataset and refuses ``--weights``: comparing two networks over the suite (``-- --weights W``) left the four
 stand-in runs without a result."""
 
-import importlib.util
-import sys
-from pathlib import Path
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "slam_suite.py"
-
-
-def _suite():
-    spec = importlib.util.spec_from_file_location("slam_suite", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up
-    try:
-        spec.loader.exec_module(module)
-    finally:
-        del sys.modules[spec.name]
-    return module
-
-
-def test_weights_reach_the_network_runs_and_not_the_standin_runs():
-    suite = _suite()
+def test_weights_reach_the_network_runs_and_not_the_standin_runs(script):
+    suite = script("slam_suite")
     passthrough = ["--threads", "1", "--weights", "w.safetensors", "--config", "c.yaml", "--weights=v.safetensors"]
     standin = ("--depth-model", "standin")
     assert suite.run_arguments(standin, passthrough) == [*standin, "--threads", "1", "--config", "c.yaml"]
