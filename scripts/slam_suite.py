@@ -139,14 +139,17 @@ def run_one(name: str, data: Path, extra: tuple[str, ...], out: Path, passthroug
 
 def row(folder: Path) -> list[str]:
     """One run's cells: failed, ATE Sim(3) (the never-moving camera's), % of the path, rotation error after the best
-    rotation alignment, translation RPE per frame (and after the Sim(3) scale), Sim(3) scale, frames/s."""
+    rotation alignment, translation RPE per frame (and after the Sim(3) scale), Sim(3) scale, scale drift (the map's
+    scale over the last fifth of the path over its scale over the first; '-' where the camera turns on the spot or
+    the run predates it), frames/s."""
     f = folder / "result.json"
     if not f.exists():
-        return ["(no result)"] + [""] * 6
+        return ["(no result)"] + [""] * 7
     s = json.loads(f.read_text())
     if "ate_sim3_rmse" not in s:
-        return [f"{s['tracking_failures']}/{s['frames']}", "(no ground truth)"] + [""] * 5
+        return [f"{s['tracking_failures']}/{s['frames']}", "(no ground truth)"] + [""] * 6
     path = s.get("path_length_gt") or float("nan")
+    drift = s.get("scale_drift")
     return [
         f"{s['tracking_failures']}/{s['frames']}",
         f"{s['ate_sim3_rmse']:.4f} ({s['no_motion_ate_rmse_aligned']:.3f})",
@@ -154,6 +157,7 @@ def row(folder: Path) -> list[str]:
         f"{s['rot_aligned_rmse_deg']:.2f}",
         f"{1000 * s['rpe_trans_rmse']:.1f} ({1000 * s['rpe_trans_sim3_rmse']:.1f})",
         f"{s['sim3_scale']:.2f}",
+        "-" if drift is None else f"{drift:.2f}",
         f"{s['fps']:.2f}",
     ]
 
@@ -162,7 +166,7 @@ def table(outs: list[Path]) -> str:
     """The runs any of ``outs`` holds (a run folder or its log), in the suite's order, one row each."""
     names = [name for name, _, _ in RUNS if any((o / name).exists() or (o / f"{name}.log").exists() for o in outs)]
     head = ["failed", "ATE Sim(3) m (never moving)", "of path", "rotation °", "RPE mm (after the scale)", "scale",
-            "frames/s"]
+            "scale drift", "frames/s"]
     if len(outs) == 1:
         lines = ["| run | " + " | ".join(head) + " |", "|---" * (len(head) + 1) + "|"]
         lines += [f"| {name} | " + " | ".join(row(outs[0] / name)) + " |" for name in names]

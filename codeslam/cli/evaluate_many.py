@@ -33,6 +33,7 @@ COLUMNS = (
     ("rpe_trans_sim3_m", "RPE Sim(3) [m]", "rpe_trans_sim3_rmse", 4),
     ("rpe_rot_deg", "RPE [deg]", "rpe_rot_rmse_deg", 3),
     ("sim3_scale", "scale", "sim3_scale", 3),
+    ("scale_drift", "scale drift", "scale_drift", 2),
     ("fps", "frames/s", "fps", 2),
 )
 RESULTS_MD, RESULTS_CSV = "results.md", "results.csv"
@@ -88,8 +89,9 @@ def results_markdown(rows: list[dict], settings: str) -> str:
     lines += ["", "ATE: RMSE of the camera positions after Umeyama alignment (SE(3), and Sim(3) with the scale shown). "
               "never-moving ATE: the best a camera that never moves could do (the positions' RMS distance to their "
               "mean). rot. error: RMSE of the orientation after the best rotation alignment. RPE: per-frame "
-              "relative pose error (RMSE). frames/s: the system alone, without reading. n/a: the sequence has no "
-              "ground truth. Each sequence's folder holds its report.html.", ""]
+              "relative pose error (RMSE). scale drift: the map's scale over the last fifth of the path over its "
+              "scale over the first (n/a where the camera turns on the spot). frames/s: the system alone, without "
+              "reading. n/a: the sequence has no ground truth. Each sequence's folder holds its report.html.", ""]
     return "\n".join(lines)
 
 

@@ -271,7 +271,10 @@ def _print_summary(s: dict, out: Path) -> None:
     if "ate_se3_rmse" in s:
         rows += [
             ("ATE SE(3)", f"{s['ate_se3_rmse']:.4f} m"),
-            ("ATE Sim(3)", f"{s['ate_sim3_rmse']:.4f} m (scale {s['sim3_scale']:.3f})"),
+            ("ATE Sim(3)", f"{s['ate_sim3_rmse']:.4f} m (scale {s['sim3_scale']:.3f}"
+                           + ("" if s.get("scale_drift") is None else
+                              f"; the map's scale at the end {s['scale_drift']:.2f}x its scale at the start")
+                           + ")"),
             ("no-motion ATE", f"{s['no_motion_ate_rmse']:.4f} m (aligned {s['no_motion_ate_rmse_aligned']:.4f} m)"),
             ("rotation error", f"{s['rot_aligned_rmse_deg']:.3f} deg RMSE after the best rotation alignment "
                                f"({s['rot_err_rmse_deg']:.3f} deg relative to the first frame)"),

@@ -117,6 +117,7 @@ def metric_rows(s: dict) -> list[tuple[str, str, str]]:
          f"{_num(s.get('rot_aligned_rmse_deg'), 3)} RMSE, {_num(s.get('rot_aligned_max_deg'), 3)} max", ""),
         ("rotation error relative to the first frame [deg]",
          f"{_num(s.get('rot_err_rmse_deg'), 3)} RMSE, {_num(s.get('rot_err_max_deg'), 3)} max", ""),
+        ("scale drift: the map's scale at the end over its scale at the start", _num(s.get("scale_drift"), 3), ""),
         ("RPE per frame, translation [m]", _num(s.get("rpe_trans_rmse")), ""),
         ("RPE per frame, translation after the Sim(3) scale [m]", _num(s.get("rpe_trans_sim3_rmse")), ""),
         ("RPE per frame, rotation [deg]", _num(s.get("rpe_rot_rmse_deg"), 3), ""),

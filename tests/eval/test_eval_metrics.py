@@ -20,6 +20,7 @@ from codeslam.eval.metrics import (
     pairs_by_frames,
     pairs_by_path,
     rpe,
+    scale_drift,
     segment_errors,
     umeyama,
 )
@@ -235,6 +236,55 @@ def test_segment_errors_of_scaled_copy():
         assert 0 < s.trans_pct < 5.0 and s.rot_deg_per_m < 1e-9 and s.n > 0
     assert all(s.trans_pct < 1e-9 for s in segment_errors(est, ref, lengths=(1.0,), with_scale=True))
     assert path > 2.0
+
+
+def _growing(ref: Trajectory, a: float, b: float) -> Trajectory:
+    """The reference's positions times a, over its first 30% of path, times b over its last 30%, and between the
+    two a factor that moves linearly with the path: a map whose scale grew by b / a."""
+    xyz = ref.positions_xyz.numpy()
+    d = accumulated_distances(xyz) / ref.path_length
+    k = np.interp(d, [0.3, 0.7], [a, b])
+    T = ref.poses.numpy().copy()
+    T[:, :3, 3] = k[:, None] * xyz
+    return Trajectory(ref.timestamps.copy(), torch.from_numpy(T))
+
+
+@pytest.mark.parametrize("straight", [False, True])
+def test_scale_drift_reads_how_much_the_maps_scale_grew_from_the_start_to_the_end(straight):
+    ref = helix(300)
+    if straight:  # a straight walk: collinear segments carry a scale though no unique rotation
+        T = ref.poses.numpy().copy()
+        T[:, :3, 3] = np.linspace(0, 1, len(T))[:, None] * np.array([10.0, 2.0, 0.5])
+        ref = Trajectory(ref.timestamps.copy(), torch.from_numpy(T))
+        with pytest.raises(CodeSLAMError, match="collinear"):
+            ate(ref, ref, align="sim3")
+    est = transformed(_growing(ref, 0.5, 0.8), random_sim3(np.random.default_rng(9), 3.0))  # any frame, any scale
+    drift = scale_drift(est, ref)
+    assert drift.growth == pytest.approx(0.8 / 0.5, rel=1e-9)
+    assert drift.start == pytest.approx(1 / (3.0 * 0.5), rel=1e-9) and drift.reliable
+    assert drift.fit_start < 1e-9 and drift.fit_end < 1e-9 and drift.n_start > 3 and drift.n_end > 3
+    held = transformed(ref, random_sim3(np.random.default_rng(2), 0.7))  # one scale all along
+    assert scale_drift(held, ref).growth == pytest.approx(1.0, rel=1e-9)
+
+
+def test_scale_drift_of_a_camera_turning_on_the_spot_is_not_read():
+    from codeslam.eval.slam_run import evaluate_run
+
+    ref = helix(200)
+    T = ref.poses.numpy().copy()
+    T[:, :3, 3] = 0.002 * np.random.default_rng(0).normal(size=(len(T), 3))  # 2 mm of shake, no path
+    spot = Trajectory(ref.timestamps.copy(), torch.from_numpy(T))
+    E = T.copy()
+    E[:, :3, 3] += 0.002 * np.random.default_rng(1).normal(size=(len(T), 3))  # the estimate's noise as large
+    noisy = Trajectory(ref.timestamps.copy(), torch.from_numpy(E))
+    drift = scale_drift(noisy, spot)
+    assert not drift.reliable and max(drift.fit_start, drift.fit_end) > 0.5
+    assert evaluate_run(noisy, spot)["scale_drift"] is None
+    assert evaluate_run(_growing(ref, 1.0, 1.25), ref)["scale_drift"] == pytest.approx(1.25, rel=1e-9)
+    with pytest.raises(CodeSLAMError, match="share"):
+        scale_drift(noisy, spot, fraction=0.6)
+    with pytest.raises(CodeSLAMError, match="at least 3"):
+        scale_drift(ref, ref, fraction=0.001)
 
 
 def test_evaluate_summary_keys():
