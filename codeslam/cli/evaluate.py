@@ -42,7 +42,7 @@ def eval_command(
     ev = metrics.evaluate(est, ref, align=align, delta=delta, delta_unit=delta_unit, max_diff=max_diff)
     results = ev.summary()
     results.update(estimate=str(estimate), groundtruth=str(groundtruth), n_estimate=len(est),
-                   n_groundtruth=len(ref))
+                   n_groundtruth=len(ref), scale_drift=metrics.scale_drift_or_none(est, ref, max_diff))
 
     if plot is not None:
         from codeslam.eval.plots import plot_trajectories
@@ -70,7 +70,10 @@ def _print_table(res: dict) -> None:
     table = Table(
         title=escape(f"{res['estimate']} vs {res['groundtruth']}"),
         caption=escape(f"{res['n_matched']} matched poses, {res['align']} alignment, scale {res['scale']:.4f}; "
-                       f"RPE over {res['rpe_n_pairs']} pairs {res['rpe_delta']:g} {unit} apart"),
+                       f"RPE over {res['rpe_n_pairs']} pairs {res['rpe_delta']:g} {unit} apart"
+                       + ("" if res.get("scale_drift") is None else
+                          f"; scale drift {res['scale_drift']:.3f} (the estimate's scale over the last fifth of "
+                          f"the path over the first)")),
     )
     table.add_column("metric")
     stats = ("rmse", "mean", "median", "std", "min", "max")

@@ -607,6 +607,16 @@ def scale_drift(est: Trajectory, ref: Trajectory, fraction: float = 0.2, max_fit
     return ScaleDrift(s0, s1, f0, f1, len(first), len(last), float(fraction), float(max_fit))
 
 
+def scale_drift_or_none(est: Trajectory, ref: Trajectory, max_diff: float = DEFAULT_MAX_DIFF) -> float | None:
+    """:attr:`ScaleDrift.growth` of :func:`scale_drift` at its defaults (first and last 20% of the path), or None
+    where it cannot be read (too few poses, a segment without motion, or not :attr:`ScaleDrift.reliable`)."""
+    try:
+        drift = scale_drift(est, ref, max_diff=max_diff)
+    except CodeSLAMError:
+        return None
+    return drift.growth if drift.reliable else None
+
+
 # ----------------------------------------------------------------------------------------------------------
 # Everything at once (what `codeslam eval` and the SLAM runner report)
 # ----------------------------------------------------------------------------------------------------------

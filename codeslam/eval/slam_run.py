@@ -35,7 +35,7 @@ def evaluate_run(est: Trajectory, gt: Trajectory) -> dict:
     baselines: a constant pose at the first ground-truth pose
     (``no_motion_ate_rmse``, unaligned) and the best any constant pose can do under alignment
     (``no_motion_ate_rmse_aligned``, the RMS distance of the positions to their mean), and the scale drift
-    (``scale_drift``, :func:`scale_drift_or_none`).
+    (``scale_drift``, :func:`codeslam.eval.metrics.scale_drift_or_none`).
     Raises :class:`CodeSLAMError` when the trajectories cannot be matched or aligned."""
     out: dict = {}
     se3 = metrics.evaluate(est, gt, align="se3")
@@ -53,22 +53,11 @@ def evaluate_run(est: Trajectory, gt: Trajectory) -> dict:
     out.update(ate_sim3_rmse=float(sim3.rmse), sim3_scale=float(sim3.alignment.s))
     # a monocular map has no scale of its own: its per-frame translations read after the Sim(3) scale (evo_rpe -as)
     out["rpe_trans_sim3_rmse"] = float(metrics.rpe(est, gt, align="sim3").trans.rmse)
-    out["scale_drift"] = scale_drift_or_none(est, gt)
+    out["scale_drift"] = metrics.scale_drift_or_none(est, gt)
     xyz = gt.positions_xyz.numpy()
     out["no_motion_ate_rmse"] = float(np.sqrt(np.mean(np.sum((xyz - xyz[0]) ** 2, axis=1))))
     out["no_motion_ate_rmse_aligned"] = float(np.sqrt(np.mean(np.sum((xyz - xyz.mean(0)) ** 2, axis=1))))
     return out
-
-
-def scale_drift_or_none(est: Trajectory, gt: Trajectory) -> float | None:
-    """The estimate's scale at the end of the run over its scale at the start
-    (:func:`codeslam.eval.metrics.scale_drift`, first and last 20% of the path), or None where the segments do not
-    move enough to carry a scale (a camera turning on the spot)."""
-    try:
-        drift = metrics.scale_drift(est, gt)
-    except CodeSLAMError:
-        return None
-    return drift.growth if drift.reliable else None
 
 
 def evaluate_run_if_possible(est: Trajectory, gt: Trajectory | None) -> dict:

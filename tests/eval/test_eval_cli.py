@@ -142,3 +142,4 @@ def test_tum_estimate_and_self_evaluation(files, tmp_path, capsys):
     res = json.loads(js.read_text())
     assert res["n_matched"] == 600 and res["scale"] == 1.0
     assert res["ate_max"] < 1e-6 and res["rpe_trans_max"] < 1e-6 and res["drift_end_error"] < 1e-6
+    assert res["scale_drift"] == pytest.approx(1.0, rel=1e-9)  # each fifth of the path fits itself exactly
