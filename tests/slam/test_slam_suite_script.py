@@ -14,3 +14,23 @@ def test_weights_reach_the_network_runs_and_not_the_standin_runs(script):
     runs = {name: extra for name, _, extra in suite.RUNS}
     assert all(suite.run_arguments(runs[n], passthrough)[-2:] == ["--config", "c.yaml"]
                for n in runs if n.endswith("_standin"))
+
+
+def test_the_table_reads_each_runs_scale_drift_and_marks_where_there_is_none(script, tmp_path):
+    import json
+
+    suite = script("slam_suite")
+    base = dict(tracking_failures=0, frames=150, ate_sim3_rmse=0.2318, no_motion_ate_rmse_aligned=2.772,
+                path_length_gt=14.116, rot_aligned_rmse_deg=0.5, rpe_trans_rmse=0.0486, rpe_trans_sim3_rmse=0.017,
+                sim3_scale=1.77, fps=2.5)
+    for name, drift in (("walk42", 1.4906), ("tum", None)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "result.json").write_text(json.dumps({**base, "scale_drift": drift}))
+    (tmp_path / "walk").mkdir()
+    (tmp_path / "walk" / "result.json").write_text(json.dumps(base))  # a run written before the metric
+    lines = suite.table([tmp_path]).splitlines()
+    head = [c.strip() for c in lines[0].strip("|").split("|")]
+    cells = {line.split("|")[1].strip(): [c.strip() for c in line.strip("|").split("|")] for line in lines[2:]}
+    col = head.index("scale drift")
+    assert cells["walk42"][col] == "1.49" and cells["tum"][col] == "-" and cells["walk"][col] == "-"
+    assert all(len(c) == len(head) for c in cells.values())
