@@ -171,14 +171,14 @@ def table(outs: list[Path]) -> str:
         lines = ["| run | " + " | ".join(head) + " |", "|---" * (len(head) + 1) + "|"]
         lines += [f"| {name} | " + " | ".join(row(outs[0] / name)) + " |" for name in names]
         return "\n".join(lines)
-    # side by side: failed, ATE, rotation per folder
-    cols = [f"{o.name}: {c}" for o in outs for c in ("failed", "ATE Sim(3) m", "rotation °")]
+    # side by side: failed, ATE, rotation, scale drift per folder
+    cols = [f"{o.name}: {c}" for o in outs for c in ("failed", "ATE Sim(3) m", "rotation °", "scale drift")]
     lines = ["| run | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for name in names:
         cells = []
         for o in outs:
             r = row(o / name)
-            cells += [r[0], r[1].split(" ")[0], r[3]]
+            cells += [r[0], r[1].split(" ")[0], r[3], r[6]]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -34,3 +34,7 @@ def test_the_table_reads_each_runs_scale_drift_and_marks_where_there_is_none(scr
     col = head.index("scale drift")
     assert cells["walk42"][col] == "1.49" and cells["tum"][col] == "-" and cells["walk"][col] == "-"
     assert all(len(c) == len(head) for c in cells.values())
+    side = suite.table([tmp_path, tmp_path / "none"]).splitlines()  # two folders side by side, the second empty
+    head2 = [c.strip() for c in side[0].strip("|").split("|")]
+    walk42 = next([c.strip() for c in line.strip("|").split("|")] for line in side if line.startswith("| walk42 "))
+    assert walk42[head2.index(f"{tmp_path.name}: scale drift")] == "1.49" and len(walk42) == len(head2)
