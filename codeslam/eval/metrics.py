@@ -125,21 +125,19 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> Sim3:
     Raises:
         CodeSLAMError: fewer than 3 points, or points that are all equal or collinear (no unique rotation).
     """
-    mu_src, mu_dst, var_src, U, D, Vt, S = _umeyama_parts(src, dst)
+    sim, D = _umeyama_fit(src, dst, with_scale)
     if D[1] <= UMEYAMA_RANK_RTOL * D[0]:
         raise CodeSLAMError(
             "cannot align trajectories: the matched positions are all equal or collinear (no unique rotation); "
             "use --align none"
         )
-    R = (U * S) @ Vt  # R = U S V^T, eq. (40)
-    s = float(np.sum(D * S) / var_src) if with_scale else 1.0  # c = tr(D S) / sigma_x^2, eq. (42)
-    t = mu_dst - s * R @ mu_src  # eq. (41)
-    return Sim3(R, t, s)
+    return sim
 
 
-def _umeyama_parts(src: np.ndarray, dst: np.ndarray):
-    """Means, source variance and the SVD of the cross-covariance of :func:`umeyama` (eqs. 34-39, 43):
-    ``(mu_src, mu_dst, var_src, U, D, Vt, S)`` with S the reflection guard; raises on all-equal points."""
+def _umeyama_fit(src: np.ndarray, dst: np.ndarray, with_scale: bool) -> tuple[Sim3, np.ndarray]:
+    """:func:`umeyama`'s similarity and the singular values D of the cross-covariance, without its rank check: for
+    collinear points (a straight stretch of path) the scale and the residual are defined though the rotation about
+    their line is not (any R of the SVD's family fits alike). Raises on fewer than 3 points or all-equal ones."""
     src = np.asarray(src, dtype=np.float64)
     dst = np.asarray(dst, dtype=np.float64)
     if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
@@ -162,7 +160,10 @@ def _umeyama_parts(src: np.ndarray, dst: np.ndarray):
     S = np.ones(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0.0:  # eq. (43): reflection -> flip the smallest axis
         S[2] = -1.0
-    return mu_src, mu_dst, var_src, U, D, Vt, S
+    R = (U * S) @ Vt  # R = U S V^T, eq. (40)
+    s = float(np.sum(D * S) / var_src) if with_scale else 1.0  # c = tr(D S) / sigma_x^2, eq. (42)
+    t = mu_dst - s * R @ mu_src  # eq. (41)
+    return Sim3(R, t, s), D
 
 
 def rotation_angle(R: np.ndarray) -> np.ndarray:
@@ -560,15 +561,12 @@ class ScaleDrift:
 
 
 def _segment_scale(src: np.ndarray, dst: np.ndarray) -> tuple[float, float]:
-    """(N, 3) estimated and reference positions -> Umeyama's scale of ``dst ≈ s R src + t`` (eq. 42) and the
-    fit's RMS residual over the RMS extent of dst. A collinear segment (a straight walk) has a scale and a residual
-    though no unique rotation: any R of the SVD's family fits it alike."""
-    mu_src, mu_dst, var_src, U, D, Vt, S = _umeyama_parts(src, dst)
-    R = (U * S) @ Vt  # eq. (40)
-    s = float(np.sum(D * S) / var_src)  # eq. (42)
-    dst_c = dst - mu_dst
-    residual = s * (src - mu_src) @ R.T - dst_c
-    return s, float(np.sqrt(np.mean(np.sum(residual**2, 1)) / np.mean(np.sum(dst_c**2, 1))))
+    """(N, 3) estimated and reference positions -> the scale of their Sim(3) fit (:func:`_umeyama_fit`, collinear
+    segments too) and the fit's RMS residual over the RMS extent of dst."""
+    sim, _ = _umeyama_fit(src, dst, with_scale=True)
+    dst_c = dst - dst.mean(axis=0)
+    residual = sim.apply_points(src) - dst
+    return sim.s, float(np.sqrt(np.mean(np.sum(residual**2, 1)) / np.mean(np.sum(dst_c**2, 1))))
 
 
 def scale_drift(est: Trajectory, ref: Trajectory, fraction: float = 0.2, max_fit: float = 0.25,
