@@ -10,8 +10,6 @@ import torch
 SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "depth_prior_eval.py"
 
 
-
-
 def test_per_frame_scales_give_spread_and_jump_and_no_shape_error(script):
     a = 1.5
     gen = torch.Generator().manual_seed(0)
