@@ -24,7 +24,7 @@ follows its keyframes' priors, so a prior whose scale jumps from view to view ma
 
 With ``--span``, also where the code's span holds the truth (slower: each frame's code Jacobian): for every frame
 the code ``c`` of the linear decoder ``prox0 + J c`` is fitted by least squares (a weak ridge) to the true depth
-scaled to ``s`` times the zero code's median scale, for ``s`` on a grid from 0.3 to 1.5, and the fit's log-depth
+scaled to ``s`` times the zero code's median scale, for ``s`` on a grid from 0.3 to 3, and the fit's log-depth
 error after its own median scale is read. ``span_scale`` is the median over frames of the ``s`` with the smallest
 error, ``span_error`` that error and ``span_error_1`` the error at ``s = 1``. SLAM's window fits the codes to the
 images, which fix the shape and not the scale, so a span that holds the truth's shape best at half the zero
@@ -147,8 +147,10 @@ class PriorStats:
                 "scale_spread": spread, "scale_jump": jump}
 
 
-#: The scales of the truth, relative to the zero code's median, at which --span fits the code.
-SPAN_SCALES = (0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.5)
+#: The scales of the truth, relative to the zero code's median, at which --span fits the code. Up to 3, as
+#: keyframe_span.py's grid: a corridor's first views are held at 1.6-2.3 (twenty-third session), which a grid
+#: ending at 1.5 read as 1.5; the points up to 1.5 are the earlier tables' own.
+SPAN_SCALES = (0.3, 0.4, 0.5, 0.6, 0.7, 0.85, 1.0, 1.2, 1.5, 1.75, 2.0, 2.5, 3.0)
 #: The ridge of that fit per pixel (weak: what the span can hold, not what the code prior would allow).
 SPAN_RIDGE = 1e-6
 

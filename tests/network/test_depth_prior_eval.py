@@ -56,7 +56,8 @@ def test_an_unknown_or_malformed_set_is_a_one_line_error():
 
 def test_span_scale_finds_where_the_code_span_holds_the_truth(script):
     """A zero code at the true scale with a fine texture printed into it, and one code direction that reaches the
-    truth at half that scale: the span holds the truth best at s = 0.5 (error ~0), worse at s = 1."""
+    truth at half that scale: the span holds the truth best at s = 0.5 (error ~0), worse at s = 1; one that reaches it
+    at twice that scale, at s = 2."""
     module = script("depth_prior_eval")
     a = 1.5
     H, W = 24, 32
@@ -74,6 +75,10 @@ def test_span_scale_finds_where_the_code_span_holds_the_truth(script):
     r = module.span_summary([fits, fits, fits])
     assert r["span_scale"] == 0.5 and r["span_error"] < 1e-3 and r["span_error_1"] == fits[1.0]
     assert module.span_summary([]) == {}
+    # A span that holds the truth at twice the zero code's depth is read at 2, not at the grid's end (a corridor's
+    # first views are held at 1.6-2.3).
+    far = module.span_fit(prox0, (a / (2.0 * depth + a) - prox0)[None], depth, a)
+    assert min(far, key=far.get) == 2.0 and far[2.0] < 1e-3 < far[1.5]
 
 
 def test_generator_sets_are_rendered_where_the_defaults_point(tmp_path, script):
