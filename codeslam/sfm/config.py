@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 from codeslam.configfile import from_mapping
@@ -114,6 +115,14 @@ class SfMConfig:
     """Accepted-or-rejected LM iterations per visited level (same length as ``pyramid_levels``)."""
     initial_damping: float = 1e-4
     """Initial lambda of the Marquardt damping H + lambda diag(H)."""
+    code_damping: float = 1.0
+    """The code entries' share of that damping: ``H + lambda diag(H) M`` with ``M`` this on the code entries and 1
+    on the poses and the rest (1: Marquardt's own). Above 1 each level's first steps move the poses before the
+    codes. 1 in the SLAM window too. Measured there at 100 (``window: {sfm: {code_damping: 100}}``;
+    docs/results/slam_table.md, session of 2026-12-01, twenty-fourth; one thread): every second HoloLens frame
+    from start frames 0 / 1 / 2 1.13 / 0.47 / 0.94 -> 0.28 / 0.45 / 0.42 m, the suite's 19 network runs 10% lower
+    ATE (geometric mean), but four generator sequences rendered afterwards 2% higher (one walk +22%), the
+    HoloLens walk with the dataset's depth +26% and the hand-held preset +22%; 1,000 and 10,000 no better."""
     damping_increase: float = 10.0
     """Factor applied to lambda after a rejected step (cost increase, NaN/inf or non-PD system)."""
     damping_decrease: float = 0.3
@@ -165,6 +174,8 @@ class SfMConfig:
             raise ConfigError("SfM config: code_prior_weight, occlusion_weight and border must be >= 0")
         if any(n < 0 for n in self.max_iterations):
             raise ConfigError(f"SfM config: max_iterations must be >= 0, got {self.max_iterations}")
+        if not (self.code_damping > 0 and math.isfinite(self.code_damping)):
+            raise ConfigError(f"SfM config: code_damping must be a positive number, got {self.code_damping}")
         for name in ("initial_damping", "min_diagonal", "relative_cost_tolerance", "step_tolerance",
                      "occlusion_margin"):
             if not getattr(self, name) >= 0:  # "not >=" also refuses NaN

@@ -99,15 +99,31 @@ class LMReport:
     reason: str = ""
 
 
-def solve_damped(H: torch.Tensor, g: torch.Tensor, damping: float, min_diagonal: float) -> torch.Tensor | None:
-    """Solve ``(H + damping diag(H)) delta = -g`` by Cholesky in float64 (the system is small; float64 keeps
-    ill-conditioned code blocks exact). Returns None when the damped matrix is not positive definite."""
+def solve_damped(H: torch.Tensor, g: torch.Tensor, damping: float, min_diagonal: float,
+                 weights: torch.Tensor | None = None) -> torch.Tensor | None:
+    """Solve ``(H + damping diag(H) M) delta = -g`` by Cholesky in float64 (the system is small; float64 keeps
+    ill-conditioned code blocks exact), ``M = diag(weights)`` (None: the identity, Marquardt's damping). Returns
+    None when the damped matrix is not positive definite."""
     Hd, gd = H.to(torch.float64), g.to(torch.float64)
     diag = Hd.diagonal().clamp_min(min_diagonal)
+    if weights is not None:
+        diag = diag * weights.to(device=diag.device, dtype=diag.dtype)
     L, info = torch.linalg.cholesky_ex(Hd + torch.diag(damping * diag))
     if int(info) != 0:
         return None
     return -torch.cholesky_solve(gd.unsqueeze(-1), L).squeeze(-1)
+
+
+def damping_weights(layout: VariableLayout, cfg: SfMConfig) -> torch.Tensor | None:
+    """(D,) the damping's weight of every free entry of ``layout``: ``cfg.code_damping`` on the code blocks, 1
+    elsewhere; None when that is all ones (no code block free, or ``code_damping`` 1)."""
+    codes = [sl for b, sl in layout.slices() if b.kind == CODE]
+    if cfg.code_damping == 1.0 or not codes:
+        return None
+    w = torch.ones(layout.dim, dtype=torch.float64)
+    for sl in codes:
+        w[sl] = cfg.code_damping
+    return w
 
 
 def levenberg_marquardt(
@@ -118,15 +134,16 @@ def levenberg_marquardt(
 
     ``problem`` gives ``evaluate(state) -> (cost, cache)``, ``linearize(state, cache, layout, clock) -> (H,
     g)`` and ``cost_change(old_cache, new_cache, old_cost, new_cost)`` (the change a step is judged on,
-    :attr:`SfMConfig.masked_rows`). Each iteration solves the damped normal equations; a step is accepted only if
-    the new cost is finite and its change negative, then the damping shrinks; otherwise (cost increase, NaN/inf,
-    non-PD system) the damping grows and the state is kept. Stops after ``max_iterations``, when an accepted step
-    lowers the cost by less than ``relative_cost_tolerance`` or is shorter than ``step_tolerance``, when the
-    quadratic model itself predicts less than that relative decrease (converged as far as the linearisation can
-    tell; this also ends the run of rejections that approximate image gradients cause near the optimum), at a
-    rejected step that promised less than ``rejection_stop_decrease`` of the cost, when the damping exceeds
-    ``max_damping``, or when ``interrupted()`` turns true before an iteration (reason 'interrupted'; the state is
-    the last accepted one, as after any stop). ``clock`` times every iteration as the stage 'iteration' and is
+    :attr:`SfMConfig.masked_rows`). Each iteration solves the damped normal equations (Marquardt's damping, the
+    code entries' share weighted by :attr:`SfMConfig.code_damping`, :func:`damping_weights`); a step is accepted
+    only if the new cost is finite and its change negative, then the damping shrinks; otherwise (cost increase,
+    NaN/inf, non-PD system) the damping grows and the state is kept. Stops after ``max_iterations``, when an
+    accepted step lowers the cost by less than ``relative_cost_tolerance`` or is shorter than ``step_tolerance``,
+    when the quadratic model itself predicts less than that relative decrease (converged as far as the
+    linearisation can tell; this also ends the run of rejections that approximate image gradients cause near the
+    optimum), at a rejected step that promised less than ``rejection_stop_decrease`` of the cost, when the damping
+    exceeds ``max_damping``, or when ``interrupted()`` turns true before an iteration (reason 'interrupted'; the
+    state is the last accepted one, as after any stop). ``clock`` times every iteration as the stage 'iteration' and is
     handed to ``linearize`` (:mod:`codeslam.clock`; the runner's, if it wants the times).
     """
     report = LMReport(damping=cfg.initial_damping)
@@ -139,6 +156,7 @@ def levenberg_marquardt(
         report.reason = "no free variables"
         return state, report
     lam = cfg.initial_damping
+    weights = damping_weights(layout, cfg)
     H = g = None
     report.reason = "max iterations"
     for _ in range(max_iterations):
@@ -148,7 +166,7 @@ def levenberg_marquardt(
         with clock("iteration"):  # the runner's stopwatch, if it passed one (codeslam.clock)
             if H is None:
                 H, g = problem.linearize(state, cache, layout, clock)
-            delta = solve_damped(H, g, lam, cfg.min_diagonal)
+            delta = solve_damped(H, g, lam, cfg.min_diagonal, weights)
             accepted, predicted = False, math.inf  # no promise without a finite step
             if delta is not None and bool(torch.isfinite(delta).all()):
                 d = delta.to(H.dtype)

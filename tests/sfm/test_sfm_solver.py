@@ -16,7 +16,7 @@ from codeslam.geometry.proximity import depth_to_prox
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.pairs import master_pairs
-from codeslam.sfm.solver import PairProblem, levenberg_marquardt, sfm, solve_damped
+from codeslam.sfm.solver import PairProblem, damping_weights, levenberg_marquardt, sfm, solve_damped
 from codeslam.sfm.variables import AFFINE, CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
 
 D = torch.float64
@@ -167,6 +167,52 @@ def test_an_indefinite_system_is_refused_by_the_cholesky_solve():
     H = torch.tensor([[2.0, 1.0], [1.0, 3.0]], dtype=D)
     delta = solve_damped(H, torch.tensor([1.0, -1.0], dtype=D), 0.0, 1e-6)
     torch.testing.assert_close(H @ delta, torch.tensor([-1.0, 1.0], dtype=D))
+
+
+class _CodeAffineQuadratic:
+    """``0.5 x^T A x + c^T x`` over x = [code 0, affine 0] (both additive), for the solver's damping."""
+
+    def __init__(self, A: torch.Tensor, c: torch.Tensor) -> None:
+        self.A, self.c = A, c
+
+    def evaluate(self, state):
+        x = torch.cat([state.codes[0], state.affine[0]])
+        return float(0.5 * x @ self.A @ x + self.c @ x), None
+
+    def linearize(self, state, cache, layout, clock=None):
+        x = torch.cat([state.codes[0], state.affine[0]])
+        return self.A.clone(), self.A @ x + self.c
+
+    def cost_change(self, old, new, old_cost, new_cost):
+        return new_cost - old_cost
+
+
+def test_code_damping_weights_the_code_entries_of_the_marquardt_damping():
+    """``SfMConfig.code_damping`` m: the step solves ``(H + lambda diag(H) M) delta = -g`` with M = m on the code
+    entries and 1 on the others; m = 1 is Marquardt's own step (no weights at all)."""
+    A = torch.tensor([[4.0, 1.0, 0.5, 0.0], [1.0, 3.0, 0.0, 0.2], [0.5, 0.0, 2.0, 0.3], [0.0, 0.2, 0.3, 1.0]], dtype=D)
+    c = torch.tensor([1.0, -2.0, 0.5, 1.5], dtype=D)
+    layout = VariableLayout([(BlockId(CODE, 0), 2), (BlockId(AFFINE, 0), 2)])
+    state = SfMState(torch.eye(4, dtype=D)[None], torch.zeros(1, 2, dtype=D), torch.zeros(1, 2, dtype=D))
+    lam = 0.5
+    for m in (1.0, 100.0):
+        cfg = SfMConfig(initial_damping=lam, code_damping=m)
+        w = damping_weights(layout, cfg)
+        assert (w is None) == (m == 1.0)
+        M = torch.tensor([m, m, 1.0, 1.0], dtype=D)
+        expected = -torch.linalg.solve(A + lam * torch.diag(A.diagonal() * M), c)
+        torch.testing.assert_close(solve_damped(A, c, lam, 1e-6, w), expected)
+        out, rep = levenberg_marquardt(_CodeAffineQuadratic(A, c), state, layout, cfg, 1)
+        assert rep.accepted == 1
+        torch.testing.assert_close(torch.cat([out.codes[0], out.affine[0]]), expected)
+    # Strongly weighted, the first step leaves the codes nearly where they were and moves the rest.
+    out, _ = levenberg_marquardt(_CodeAffineQuadratic(A, c), state, layout, SfMConfig(initial_damping=lam,
+                                                                                        code_damping=1e6), 1)
+    assert float(out.codes[0].abs().max()) < 1e-5 < float(out.affine[0].abs().min())
+    assert damping_weights(VariableLayout([(BlockId(AFFINE, 0), 2)]), SfMConfig(code_damping=10.0)) is None
+    for bad in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(CodeSLAMError, match="code_damping"):
+            SfMConfig(code_damping=bad)
 
 
 def test_bad_pairs_are_user_errors():
