@@ -20,7 +20,7 @@ import torch
 
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.image import image_pyramid
-from codeslam.geometry.proximity import prox_to_depth
+from codeslam.geometry.proximity import depth_to_prox, prox_to_depth
 
 
 @dataclass(frozen=True)
@@ -131,6 +131,41 @@ class LinearDecoder:
 
         levels = tuple(DecoderLevel(cv(lv.prox0), cv(lv.jac), cv(lv.uncertainty)) for lv in self.levels)
         return LinearDecoder(levels, self.avg_depth)
+
+
+@dataclass(frozen=True)
+class ScaledDecoder(LinearDecoder):
+    """A linear decoder whose code has one more entry, a log scale ``s`` of the decoded depth, applied exactly:
+    ``D(c, s) = exp(s) D(prox0 + J c)`` (``window.free_scale``: a keyframe's scale the window moves apart from its
+    code). Not in the paper; a change of variables written by hand (the scale is not linear in proximity).
+
+    :meth:`prox` returns the proximity of the scaled depth at the same ``avg_depth``, so every consumer of
+    ``prox`` and ``depth`` (the tracker's keyframe, the map's depths) sees the scaled depth. Each level's ``jac``
+    has one more channel for the scale, a zero placeholder here: the window's stacked levels hold its value at the
+    current code (:meth:`~codeslam.sfm.keyframes.LevelData.refresh_scale_column`), where the depth is scaled
+    through the average depth instead (:meth:`~codeslam.sfm.keyframes.LevelData.avg_depth_at`)."""
+
+    @classmethod
+    def wrap(cls, decoder: LinearDecoder) -> ScaledDecoder:
+        """``decoder`` with the scale entry appended to its code (0: the depth unscaled)."""
+        levels = tuple(DecoderLevel(lv.prox0, torch.cat([lv.jac, torch.zeros_like(lv.jac[:1])]), lv.uncertainty)
+                       for lv in decoder.levels)
+        return cls(levels, decoder.avg_depth)
+
+    def prox(self, code: torch.Tensor, level: int = 0) -> torch.Tensor:
+        lvl = self.levels[level]
+        code = code.to(lvl.jac.dtype)
+        p = lvl.prox0 + torch.einsum("chw,c->hw", lvl.jac[:-1], code[:-1])
+        if float(code[-1]) == 0.0:
+            return p
+        return depth_to_prox(prox_to_depth(p, self.avg_depth) * torch.exp(code[-1]), self.avg_depth)
+
+    def principal(self, k: int):
+        raise CodeSLAMError("a scaled decoder is made from the principal one, not the other way round")
+
+    def to(self, dtype=None, device=None) -> ScaledDecoder:
+        plain = LinearDecoder.to(self, dtype, device)
+        return ScaledDecoder(plain.levels, plain.avg_depth)
 
 
 def cosine_basis(

@@ -12,7 +12,7 @@ import torch
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera, pixel_grid
 from codeslam.geometry.image import image_gradients, image_pyramid, pyramid_cameras, rgb_to_gray
-from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
+from codeslam.sfm.decoder import DecoderLevel, LinearDecoder, ScaledDecoder
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,10 @@ class LevelData:
         gray_valid: (F, 1, H, W) 1 where the grey value comes from real pixels only, 0 elsewhere; None when
             every keyframe's image is valid everywhere.
         level: the pyramid level (0 = finest).
+        scale_entry: the codes' last entry is a log scale of the depth, exactly (the keyframes'
+            :class:`~codeslam.sfm.decoder.ScaledDecoder`): ``jac``'s last channel is its column at the last
+            linearisation (:meth:`refresh_scale_column`), :meth:`prox` leaves it out and :meth:`avg_depth_at`
+            applies it.
     """
 
     gray: torch.Tensor
@@ -83,6 +87,7 @@ class LevelData:
     uv: torch.Tensor
     gray_valid: torch.Tensor | None = None
     level: int = 0
+    scale_entry: bool = False
 
     @property
     def height(self) -> int:
@@ -112,10 +117,30 @@ class LevelData:
     def prox(self, codes: torch.Tensor) -> torch.Tensor:
         """codes (F, C) -> (F, 1, H, W) decoded proximity ``prox0 + J c`` (exact for a linear decoder)."""
         F_, C, H, W = self.jac.shape
+        if self.scale_entry:  # the scale is not linear in proximity: avg_depth_at applies it
+            return self.prox0 + torch.bmm(codes[:, None, :C - 1], self.jac.reshape(F_, C, H * W)[:, :C - 1]
+                                          ).reshape(F_, 1, H, W)
         # One (1, C) x (C, N) product per frame. torch.einsum("fchw,fc->fhw") chose a batched matrix-vector
         # product over the transposed Jacobian instead: 5.1 against 0.12 ms at C = 64, 4 x 128x96, 2 threads (the
         # same values to the bit), about 6% of a SLAM window solve, which evaluates this at every step.
         return self.prox0 + torch.bmm(codes.unsqueeze(1), self.jac.reshape(F_, C, H * W)).reshape(F_, 1, H, W)
+
+    def avg_depth_at(self, codes: torch.Tensor) -> torch.Tensor:
+        """(F,) the average depth a each frame's proximity is read with: ``a exp(s)`` with a scale entry (the
+        depth ``a (1 - p) / p`` scaled by exp(s) exactly), else ``avg_depth``."""
+        return self.avg_depth * torch.exp(codes[:, -1]) if self.scale_entry else self.avg_depth
+
+    def refresh_scale_column(self, codes: torch.Tensor) -> None:
+        """With a scale entry: the scale's column of ``jac`` at ``codes``. With ``a' = a exp(s)``, ``d D / d s =
+        D = (d D / d p) (-p (1 - p))``: the column ``-p (1 - p)`` at the current linear proximity p, in the
+        compact form ``d r / d c = s_A J[u]`` of the residuals (which carry ``d D / d p`` at a')."""
+        if not self.scale_entry:
+            return
+        p = self.prox(codes.detach())[:, 0]  # (F, H, W)
+        col = -p * (1.0 - p)
+        self.jac[:, -1] = col
+        if "jac_channels_last" in self.__dict__:
+            self.__dict__["jac_channels_last"][:, -1] = col  # the cached copy of jac (jac_channels_last)
 
 
 def build_levels(
@@ -175,6 +200,7 @@ def build_levels(
             uv=pixel_grid(H, W, dtype, device).reshape(-1, 2),
             gray_valid=None if valid_pyr is None else real_pixels(valid_pyr[lvl]),
             level=lvl,
+            scale_entry=any(isinstance(kf.decoder, ScaledDecoder) for kf in keyframes),
         )
     return out
 

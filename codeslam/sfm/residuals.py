@@ -230,7 +230,7 @@ def evaluate_pairs(
     H, W = level.height, level.width
     iA, iB = pairs[:, 0], pairs[:, 1]
     prox = level.prox(codes)  # (F, 1, H, W), prox0 + J c
-    a = level.avg_depth  # (F,)
+    a = level.avg_depth_at(codes)  # (F,)
     depth = prox_to_depth(prox, a[:, None, None, None])  # (F, 1, H, W), Eq. 4 inverted
     T_BA = relative_pose(poses[iA], poses[iB])  # (P, 4, 4)
     d_A = depth[iA].reshape(P, -1)  # (P, N), D_A[u]
@@ -471,6 +471,10 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
         JB_idx = [k.nonzero().squeeze(-1) for k in w[:, tg] != 0]  # P x (M_p,); w is 0 where masked
         JB_w = sample_by_frame(level.jac_channels_last, pairs[:, 1].tolist(),
                                [ev.v[p, k] for p, k in enumerate(JB_idx)])
+        if level.scale_entry:  # d r_geo / d s_B = -1 exactly (log depth): s_B J = -1 rather than the bilinear
+            # lookup of the scale's column, which is not linear in the proximity it is read at
+            for p, k in enumerate(JB_idx):
+                JB_w[p][-1] = 1.0 / ev.dgeo_dprox_B[p, k]
     return PairTerms(
         types=ev.types,
         r=ev.r,

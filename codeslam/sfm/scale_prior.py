@@ -56,6 +56,9 @@ class DepthScalePrior:
         all_valid = bool(self._valid.all())
         self._p0 = prox0 if all_valid else torch.where(self._valid, prox0, 0.0)
         jac = self.level.jac.flatten(2) if every else self.level.jac[idx].flatten(2)  # (K, C, N)
+        self._scaled = self.level.scale_entry  # the codes' last entry is a log scale: m = s + mean log D(c)
+        if self._scaled:
+            jac = jac[:, :-1]
         self._jac = jac if all_valid else torch.where(self._valid[:, None], jac, 0.0)
         self._a = self.level.avg_depth[idx].to(prox0.dtype)[:, None]  # (K, 1)
         self._target = self._mean_log_depth(self._p0)  # (K,) m(0)
@@ -68,7 +71,12 @@ class DepthScalePrior:
     def _prox(self, state: SfMState) -> torch.Tensor:
         """(K, N) proximity ``p0 + J c`` of the prior's frames at the state's codes."""
         codes = state.codes[self._idx].to(self._jac.dtype)  # (K, C)
+        if self._scaled:
+            codes = codes[:, :-1]
         return self._p0 + (codes[:, None, :] @ self._jac).squeeze(1)
+
+    def _log_scale(self, state: SfMState) -> torch.Tensor | float:
+        return state.codes[self._idx, -1].to(self._jac.dtype) if self._scaled else 0.0
 
     def _residuals(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor]:
         """-> r (K,) and dr/dc (K, C) of the prior's frames, in their order."""
@@ -77,10 +85,12 @@ class DepthScalePrior:
         d = prox_to_depth(prox, self._a).clamp_min(1e-6)
         dlog = torch.where(self._valid, d_depth_d_prox(prox, self._a) / d, 0.0)  # (K, N) d log D / dp
         grad = batched_mv(self._jac, dlog) / self._count[:, None]  # (K, C) dm/dc
-        return (m - self._target) / self.sigma, grad / self.sigma
+        if self._scaled:  # m = s + mean log D(c): dm/ds = 1
+            grad = torch.cat([grad, torch.ones_like(grad[:, :1])], dim=1)
+        return (m + self._log_scale(state) - self._target) / self.sigma, grad / self.sigma
 
     def cost(self, state: SfMState) -> torch.Tensor:
-        r = (self._mean_log_depth(self._prox(state)) - self._target) / self.sigma  # without the Jacobian
+        r = (self._mean_log_depth(self._prox(state)) + self._log_scale(state) - self._target) / self.sigma
         return 0.5 * r.to(state.codes.dtype).square().sum()
 
     def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
@@ -107,7 +117,7 @@ class WindowScalePrior(DepthScalePrior):
     """
 
     def cost(self, state: SfMState) -> torch.Tensor:
-        r = (self._mean_log_depth(self._prox(state)) - self._target).mean() / self.sigma
+        r = (self._mean_log_depth(self._prox(state)) + self._log_scale(state) - self._target).mean() / self.sigma
         return 0.5 * r.to(state.codes.dtype).square()
 
     def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:

@@ -77,6 +77,7 @@ class PairProblem:
     def linearize(
         self, state: SfMState, cache: PairEvaluation, layout: VariableLayout, clock: Clock = NO_CLOCK
     ) -> tuple[torch.Tensor, torch.Tensor]:
+        self.level.refresh_scale_column(state.codes)
         code_b_free = any(BlockId(CODE, b) in layout for b in self.pair_b)
         terms = pair_jacobians(self.level, self.pairs, cache, with_code_b=code_b_free)
         H, g = assemble(terms, self.pairs, state.poses, self.level, layout, clock)

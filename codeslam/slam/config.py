@@ -393,6 +393,17 @@ class WindowConfig:
     0.32 / 0.96 m; a generator corridor 0.256 / 0.257 / 0.290 -> 0.219 / 0.156 / 0.268 m; fast turn 13 0.012 /
     0.010 / 0.012 -> 0.014 / 0.015 / 0.014 m; the rest within 0.004 m or better. At 4 it acted too little
     (fast turn 14: 5.2 deg; every second HoloLens frame: 1.20 m), 0.5 was no better than 1."""
+    free_scale: bool = False
+    """Each keyframe's code gets one more entry, a log scale s of its decoded depth, applied exactly (the depth
+    times exp(s); :class:`~codeslam.sfm.decoder.ScaledDecoder`), under the code prior (N(0, 1) on s) and
+    ``depth_scale_sigma`` on the whole depth: the code then fits a view's shape at whatever depth its span holds
+    it, and the scale is left to the data and the priors. Off by default: measured (docs/results/slam_table.md,
+    twenty-fifth session; the window's normal equations with it checked against autograd in float64), the whole
+    suite's network runs went 1.31x worse in geometric mean (walk 42 0.232 -> 0.135 m and hand-held 52 0.030 ->
+    0.016 m better; the HoloLens walk 0.144 -> 0.262 m, the walk preset 0.064 -> 0.133 m, walk 54 0.145 -> 0.397
+    m): the maps no longer grow with the span, they slide down at turns (walk 43: from 0.76 to 0.36 of the truth
+    over frames 98-115, scale drift 0.42) with or without the velocity prior, with ``depth_scale_sigma`` 0.1 or
+    ``window_scale_sigma`` 0.05, and with each new keyframe started at the map's scale."""
     interruptible: bool = True
     """Parallel mapping: a keyframe the tracker needs at once (the last one is leaving the view) stops the running
     window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops
@@ -413,6 +424,8 @@ class WindowConfig:
             raise ConfigError(f"window.motion_prior_acceleration must be >= 0, got {self.motion_prior_acceleration}")
         if not (isinstance(self.code_directions, int) and self.code_directions >= 0):
             raise ConfigError(f"window.code_directions must be an integer >= 0, got {self.code_directions}")
+        if self.free_scale and self.sfm.geometric_space != "log_depth":  # d r_geo / d s_B = -1 needs log depth
+            raise ConfigError("window.free_scale needs window.sfm.geometric_space: log_depth")
         if self.sfm.rolling_shutter:  # the window's marginalisation and the tracker have no readout rotations
             raise ConfigError("window.sfm.rolling_shutter is supported by `codeslam sfm` only, not in SLAM")
 

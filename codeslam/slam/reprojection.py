@@ -210,7 +210,8 @@ class StackedReprojectionTerm:
     The pairs must share the feature camera, Huber threshold and weight (a window's do).
     """
 
-    def __init__(self, terms: list[DecodedReprojectionTerm]) -> None:
+    def __init__(self, terms: list[DecodedReprojectionTerm], scaled: bool = False) -> None:
+        self.scaled = scaled  # the codes' last entry is a log scale of A's depth (window.free_scale)
         terms = [t for t in terms if len(t) > 0]
         self.num_pairs = len(terms)
         if not terms:
@@ -243,8 +244,13 @@ class StackedReprojectionTerm:
         dtype, device = state.poses.dtype, state.poses.device
         T_BA = relative_pose(state.poses[self.a], state.poses[self.b])[self.pid]  # (N, 4, 4) T_wB^-1 T_wA
         codes = state.codes[self.a][self.pid].to(self.jac_t.dtype)  # (N, C) c_A of each match
-        prox = self.prox0 + (codes * self.jac_t).sum(-1)  # (N,) p0 + J c
-        X = (self.ray_a * prox_to_depth(prox, self.avg_depth)[:, None]).to(dtype)  # X_A = D ray (Eq. 4 inverted)
+        if self.scaled:
+            prox = self.prox0 + (codes[:, :-1] * self.jac_t[:, :-1]).sum(-1)
+            self._a_eff = self.avg_depth * torch.exp(codes[:, -1])
+        else:
+            prox = self.prox0 + (codes * self.jac_t).sum(-1)  # (N,) p0 + J c
+            self._a_eff = self.avg_depth
+        X = (self.ray_a * prox_to_depth(prox, self._a_eff)[:, None]).to(dtype)  # X_A = D ray (Eq. 4 inverted)
         R = T_BA[:, :3, :3]
         x = (R @ X[..., None]).squeeze(-1) + T_BA[:, :3, 3]  # x = T_BA X_A
         r = project(x, self.camera.params(dtype, device)) - self.uv_b.to(dtype=dtype, device=device)
@@ -267,9 +273,12 @@ class StackedReprojectionTerm:
         J_rel = dpi @ torch.cat([eye, -hat(x)], dim=-1)  # (N, 2, 6): dpi/dx [I, -x^]
         Ad, _ = relative_pose_jacobians(state.poses[self.b])  # (P, 6, 6): d xi_BA / d xi_A = Ad_{T_Bw} = -d/d xi_B
         J_A = J_rel @ Ad[self.pid]
-        dd_dp = d_depth_d_prox(prox, self.avg_depth)  # (N,)
+        dd_dp = d_depth_d_prox(prox, self._a_eff)  # (N,)
         dx_dd = (R @ self.ray_a.to(x.dtype)[..., None])  # (N, 3, 1): R_BA ray
-        J_c = (dpi @ dx_dd) * (dd_dp[:, None, None] * self.jac_t[:, None, :]).to(x.dtype)  # (N, 2, C)
+        jac = self.jac_t
+        if self.scaled:  # d D / d s = D = (d D / d p) (-p (1 - p))
+            jac = torch.cat([jac[:, :-1], (-prox * (1.0 - prox))[:, None]], dim=1)
+        J_c = (dpi @ dx_dd) * (dd_dp[:, None, None] * jac[:, None, :]).to(x.dtype)  # (N, 2, C)
         _, w = self._robust(r, x)
         return r, torch.cat([J_A, -J_A, J_c], dim=-1), w
 

@@ -47,7 +47,7 @@ from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.lie import se3_inverse, so3_log
 from codeslam.geometry.resample import resample_depth
 from codeslam.geometry.rolling_shutter import rectify_image, rectify_points, source_pixels
-from codeslam.sfm.decoder import LinearDecoder
+from codeslam.sfm.decoder import LinearDecoder, ScaledDecoder
 from codeslam.sfm.keyframes import Keyframe
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.features import Features, scaled_camera
@@ -719,6 +719,8 @@ class CodeSLAM:
         basis = None
         if self.config.window.code_directions > 0:  # the code's leading directions only (WindowConfig)
             decoder, basis = decoder.principal(self.config.window.code_directions)
+        if self.config.window.free_scale:  # one more code entry, the depth's log scale (WindowConfig)
+            decoder = ScaledDecoder.wrap(decoder)
         image = frame.image.to(dtype=self.dtype, device=self.device)  # RGB kept for the map's colours
         code = torch.zeros(decoder.code_size, dtype=self.dtype, device=self.device)
         depth_zero = decoder.depth(code, 0).detach().cpu().float()
@@ -729,7 +731,7 @@ class CodeSLAM:
             T_wc=project_to_se3(T_wc), code=code, depth_zero=depth_zero,
             uncertainty=None if b is None else b.detach().cpu().float(),
             depth_gt=None if frame.depth is None else frame.depth.detach().cpu().float(), segment=segment,
-            code_basis=basis,
+            code_basis=basis, free_scale=self.config.window.free_scale,
         )
         if views.features is not None and len(views.features) > 0:
             kf.sparse = KeyframeFeatures(views.features, self.sparse.points(views.features, depth_zero))

@@ -78,6 +78,7 @@ class MapKeyframe:
         segment: the map segment the keyframe belongs to (a new one starts after tracking was lost).
         code_basis: (C, k) when the code is optimised in a subspace of the network's code
             (``window.code_directions``): the network's code is ``code_basis @ code``; None otherwise.
+        free_scale: the code's last entry is a log scale of the depth (``window.free_scale``), not the network's.
     """
 
     id: int
@@ -93,11 +94,13 @@ class MapKeyframe:
     depth_gt: torch.Tensor | None = None
     segment: int = 0
     code_basis: torch.Tensor | None = None
+    free_scale: bool = False
 
     @property
     def network_code(self) -> torch.Tensor:
         """(C,) the keyframe's code in the network's coordinates."""
-        return self.code if self.code_basis is None else self.code_basis @ self.code.to(self.code_basis.dtype)
+        code = self.code[:-1] if self.free_scale else self.code  # the last entry is a log scale (free_scale)
+        return code if self.code_basis is None else self.code_basis @ code.to(self.code_basis.dtype)
 
     @property
     def active(self) -> bool:
@@ -332,7 +335,8 @@ class SlidingWindow:
         layout = VariableLayout.for_sfm(F_, C, len(id_pairs), cfg.affine_brightness, self._fixed())
         levels = build_levels([k.view for k in self.keyframes], cfg.pyramid_levels, dtype, device)
         n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
-        sparse_terms = [StackedReprojectionTerm(self._pair_terms())]  # matched keypoints: level-independent
+        # matched keypoints: level-independent
+        sparse_terms = [StackedReprojectionTerm(self._pair_terms(), self.cfg.free_scale)]
         if self.cfg.motion_prior_acceleration > 0:  # consecutive keyframes' velocities: level-independent too
             sparse_terms.append(VelocityPrior.consecutive([k.timestamp for k in self.keyframes],
                                                           self.cfg.motion_prior_acceleration))
@@ -445,12 +449,13 @@ class SlidingWindow:
             pairs = torch.tensor([[pos[a], pos[b]] for a, b in id_pairs], device=device)
             ev = evaluate_pairs(level, pairs, state.poses, state.codes, state.affine if cfg.affine_brightness
                                 else None, cfg)
+            level.refresh_scale_column(state.codes)
             terms = pair_jacobians(level, pairs, ev, with_code_b=True)
             H_d, g_d = assemble(terms, pairs, state.poses, level, layout)
             H += H_d.to(torch.float64)
             g += g_d.to(torch.float64)
         # matched keypoints of the pairs that involve it
-        StackedReprojectionTerm(self._pair_terms({old_id})).add_to(H, g, layout, state)
+        StackedReprojectionTerm(self._pair_terms({old_id}), self.cfg.free_scale).add_to(H, g, layout, state)
         if self.cfg.motion_prior_acceleration > 0:  # the velocity prior of the triple that starts with it
             VelocityPrior.consecutive([k.timestamp for k in kfs[:3]],
                                       self.cfg.motion_prior_acceleration).add_to(H, g, layout, state)

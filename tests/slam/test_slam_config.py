@@ -90,3 +90,12 @@ def test_the_rolling_shutter_model_is_refused_in_the_slam_window(tmp_path):
     path.write_text("window:\n  sfm:\n    rolling_shutter: true\n")
     with pytest.raises(ConfigError, match="rolling_shutter is supported by `codeslam sfm` only"):
         load_config(path)
+
+
+def test_the_free_scale_is_refused_with_the_geometric_term_in_proximity(tmp_path):
+    path = tmp_path / "slam.yaml"
+    path.write_text("window:\n  free_scale: true\n  sfm:\n    geometric_space: proximity\n")
+    with pytest.raises(ConfigError, match="free_scale needs window.sfm.geometric_space: log_depth"):
+        load_config(path)
+    path.write_text("window:\n  free_scale: true\n")
+    assert load_config(path).window.free_scale

@@ -200,3 +200,31 @@ def test_stacked_pairs_jacobians_match_autograd_float64():
         expect_c = torch.where((a == k)[:, None, None], J[..., 12:], 0)
         assert torch.allclose(expect_c, J_code, atol=1e-9, rtol=1e-7), (k, (expect_c - J_code).abs().max())
         assert float(J_code.abs().max()) > 1e-3 or not bool((a == k).any())
+
+
+def test_stacked_pairs_with_a_scale_entry_match_autograd_float64():
+    """With the codes' last entry a log scale of A's depth (``window.free_scale``), the keypoints' gradient over
+    poses, codes and scales equals autograd's of their cost; the depth is scaled exactly."""
+    from codeslam.sfm.autodiff import retract_differentiable
+    from codeslam.sfm.variables import CODE
+    from codeslam.slam.reprojection import StackedReprojectionTerm
+
+    terms, state = _decoded_pairs(seed=9, C=5)
+    for t in terms:  # a placeholder row for the scale entry in each term's sampled Jacobian
+        t.jac = torch.cat([t.jac, torch.zeros_like(t.jac[:1])])
+    scales = torch.tensor([[0.2], [-0.1], [0.35]], dtype=D)
+    state = SfMState(state.poses, torch.cat([state.codes, scales], 1), state.affine)
+    stacked = StackedReprojectionTerm(terms, scaled=True)
+    layout = VariableLayout([(BlockId(POSE, i), 6) for i in range(3)] + [(BlockId(CODE, i), 6) for i in range(3)])
+    H, g = torch.zeros(layout.dim, layout.dim, dtype=D), torch.zeros(layout.dim, dtype=D)
+    stacked.add_to(H, g, layout, state)
+    delta = torch.zeros(layout.dim, dtype=D, requires_grad=True)
+    stacked.cost(retract_differentiable(state, layout, delta)).backward()
+    assert torch.allclose(g, delta.grad, rtol=1e-9, atol=1e-9), (g - delta.grad).abs().max()
+    assert float(g[layout.slice(BlockId(CODE, 0)).stop - 1].abs()) > 1e-3  # the scale is seen
+    # exp(s) scales the points A's keypoints decode to
+    X = [stacked._residuals(SfMState(state.poses, torch.cat([state.codes[:, :-1], s * scales], 1),
+                                     state.affine))[1] for s in (0.0, 1.0)]
+    T_BA = se3_inverse(state.poses[stacked.b[stacked.pid]]) @ state.poses[stacked.a[stacked.pid]]
+    X = [((x - T_BA[:, :3, 3])[:, None] @ T_BA[:, :3, :3]).squeeze(1) for x in X]  # back in A's frame
+    torch.testing.assert_close(X[1], X[0] * torch.exp(scales[stacked.a[stacked.pid]]), rtol=1e-12, atol=1e-12)

@@ -203,3 +203,31 @@ def test_codes_in_the_decoders_leading_directions(tmp_path):
     codes = np.load(tmp_path / "kf.npz")["code"]
     assert codes.shape == (len(run.keyframes), 32)
     np.testing.assert_allclose(codes[-1], run.keyframes[-1].network_code.double().numpy())
+
+
+def test_a_free_scale_per_keyframe(tmp_path):
+    # window.free_scale: the codes carry one more entry, a log scale the window moves; the map's files hold the
+    # network's code and each keyframe's depth is its unscaled depth times exp(s)
+    import numpy as np
+
+    from codeslam.sfm.decoder import ScaledDecoder
+    from codeslam.slam.pipeline import write_keyframes
+
+    frames = synth_frames(3, 16, 7.5)
+    seq = MemorySequence(frames)
+    system = CodeSLAM(small_config(size=3, code_directions=8, free_scale=True), standin_depth_model(num_levels=3))
+    run = run_slam(seq, system, frames[0].camera)
+    ev = evaluate_run(run.trajectory, ground_truth(seq, range(len(seq))))
+    assert all(r.tracking_ok for r in run.results)
+    assert ev["ate_sim3_rmse"] < 0.25 * ev["no_motion_ate_rmse_aligned"]
+    assert any(abs(float(k.code[-1])) > 1e-3 for k in run.keyframes)  # the window moved the scales
+    for k in run.keyframes:
+        assert k.code.shape == (9,) and k.network_code.shape == (32,)
+        torch.testing.assert_close(k.network_code, k.code_basis @ k.code[:-1])
+    active = [k for k in run.keyframes if k.active]
+    assert active and all(isinstance(k.view.decoder, ScaledDecoder) for k in active)
+    k = active[-1]
+    unscaled = k.view.decoder.depth(torch.cat([k.code[:-1], torch.zeros(1, dtype=k.code.dtype)]))
+    torch.testing.assert_close(k.depth_map(), unscaled * torch.exp(k.code[-1]), rtol=1e-5, atol=1e-6)
+    write_keyframes(tmp_path / "kf.npz", run.keyframes, frames[0].camera)
+    assert np.load(tmp_path / "kf.npz")["code"].shape == (len(run.keyframes), 32)
