@@ -317,6 +317,18 @@ class SlidingWindow:
         return [BlockId(POSE, 0)] if self.prior is None else []
 
     # ---- optimisation ---------------------------------------------------------------------------------------
+    def problem(self) -> tuple[list[tuple[int, int]], torch.Tensor, SfMState, VariableLayout]:
+        """What a solve optimises: the keyframe id pairs with residuals, the same pairs at window positions (P, 2),
+        the state (poses, codes, affine of each pair) and the layout of its free blocks."""
+        _, device = self._tensors()
+        id_pairs = self.select_pairs()
+        pos = self._positions()
+        pairs = torch.tensor([[pos[a], pos[b]] for a, b in id_pairs], device=device)
+        state = self._state(id_pairs)
+        F_, C = state.codes.shape
+        return id_pairs, pairs, state, VariableLayout.for_sfm(F_, C, len(id_pairs), self.cfg.sfm.affine_brightness,
+                                                             self._fixed())
+
     def optimise(self, interrupted: Callable[[], bool] | None = None) -> WindowReport:
         """Jointly optimise the codes and poses of the window's keyframes (paper Sec. 4.1/4.3), coarse to fine,
         from their current values; writes the results back into the keyframes. ``interrupted()`` is asked before
@@ -327,12 +339,8 @@ class SlidingWindow:
             return report
         cfg: SfMConfig = self.cfg.sfm
         dtype, device = self._tensors()
-        id_pairs = self.select_pairs()
-        pos = self._positions()
-        pairs = torch.tensor([[pos[a], pos[b]] for a, b in id_pairs], device=device)
-        state = self._state(id_pairs)
-        F_, C = state.codes.shape
-        layout = VariableLayout.for_sfm(F_, C, len(id_pairs), cfg.affine_brightness, self._fixed())
+        id_pairs, pairs, state, layout = self.problem()
+        F_ = state.codes.shape[0]
         levels = build_levels([k.view for k in self.keyframes], cfg.pyramid_levels, dtype, device)
         n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
         # matched keypoints: level-independent
