@@ -153,6 +153,7 @@ class ScaledDecoder(LinearDecoder):
         return cls(levels, decoder.avg_depth)
 
     def prox(self, code: torch.Tensor, level: int = 0) -> torch.Tensor:
+        """code (C + 1,) -> (H_l, W_l) the proximity, at ``avg_depth``, of ``exp(s) D(prox0 + J c)``."""
         lvl = self.levels[level]
         code = code.to(lvl.jac.dtype)
         p = lvl.prox0 + torch.einsum("chw,c->hw", lvl.jac[:-1], code[:-1])
@@ -161,9 +162,11 @@ class ScaledDecoder(LinearDecoder):
         return depth_to_prox(prox_to_depth(p, self.avg_depth) * torch.exp(code[-1]), self.avg_depth)
 
     def principal(self, k: int):
+        """Not defined: take the principal directions first, then wrap (:meth:`wrap`)."""
         raise CodeSLAMError("a scaled decoder is made from the principal one, not the other way round")
 
     def to(self, dtype=None, device=None) -> ScaledDecoder:
+        """The same decoder in ``dtype`` on ``device``, still scaled."""
         plain = LinearDecoder.to(self, dtype, device)
         return ScaledDecoder(plain.levels, plain.avg_depth)
 
