@@ -25,6 +25,10 @@ from dataclasses import replace
 
 import torch
 
+#: The window's terms by class, as the table names them.
+LABELS = {"LinearPrior": "marginal prior", "StackedReprojectionTerm": "keypoints", "VelocityPrior": "velocity prior",
+          "DepthScalePrior": "depth scale priors", "WindowScalePrior": "window scale prior"}
+
 
 def scale_terms(window, level: int = 0) -> dict[str, tuple[float, float]]:
     """Each cost term of ``window`` (a :class:`~codeslam.slam.window.SlidingWindow` whose keyframes have a scale
@@ -34,10 +38,7 @@ def scale_terms(window, level: int = 0) -> dict[str, tuple[float, float]]:
     from codeslam.sfm.normal_equations import assemble
     from codeslam.sfm.priors import CodePrior
     from codeslam.sfm.residuals import evaluate_pairs, pair_jacobians
-    from codeslam.sfm.scale_prior import DepthScalePrior
     from codeslam.sfm.variables import CODE, POSE, BlockId
-    from codeslam.slam.reprojection import StackedReprojectionTerm
-    from codeslam.slam.velocity_prior import VelocityPrior
 
     if not all(k.free_scale for k in window.keyframes):
         raise SystemExit("window_scale_terms: the window's keyframes have no scale entry (window.free_scale)")
@@ -54,33 +55,25 @@ def scale_terms(window, level: int = 0) -> dict[str, tuple[float, float]]:
             d[sl.start:sl.start + 3] = (state.poses[i, :3, 3] - origin).double()
         d[layout.slice(BlockId(CODE, i)).stop - 1] = 1.0
 
-    def along(add) -> tuple[float, float]:
-        H = torch.zeros(layout.dim, layout.dim, dtype=dtype, device=device)
-        g = torch.zeros(layout.dim, dtype=dtype, device=device)
-        add(H, g)
+    def along(H: torch.Tensor, g: torch.Tensor) -> tuple[float, float]:
         return float(g.double().cpu() @ d), float(d @ H.double().cpu() @ d)
 
-    def data(types: dict):
+    def data(types: dict) -> tuple[torch.Tensor, torch.Tensor]:
         c = replace(cfg, **types)
         ev = evaluate_pairs(lvl, pairs, state.poses, state.codes, state.affine if c.affine_brightness else None, c)
         lvl.refresh_scale_column(state.codes)
-        H, g = assemble(pair_jacobians(lvl, pairs, ev), pairs, state.poses, lvl, layout)
-        return lambda H_, g_: (H_.add_(H), g_.add_(g))
+        return assemble(pair_jacobians(lvl, pairs, ev), pairs, state.poses, lvl, layout)
 
-    out = {"photometric": along(data({"geometric": False})), "geometric": along(data({"photometric": False})),
-           "keypoints": along(lambda H, g: StackedReprojectionTerm(window._pair_terms(), True).add_to(H, g, layout,
-                                                                                                     state))}
-    prior = window._positioned_prior(1.0)
-    if prior is not None:
-        out["marginal prior"] = along(lambda H, g: prior.add_to(H, g, layout, state))
-    if window.cfg.motion_prior_acceleration > 0:
-        out["velocity prior"] = along(lambda H, g: VelocityPrior.consecutive(
-            [k.timestamp for k in window.keyframes], window.cfg.motion_prior_acceleration).add_to(H, g, layout, state))
-    if window.cfg.depth_scale_sigma > 0:
-        out["depth scale priors"] = along(lambda H, g: DepthScalePrior(lvl, list(range(F_)),
-                                                                       window.cfg.depth_scale_sigma).add_to(
-            H, g, layout, state))
-    out["code prior"] = along(lambda H, g: CodePrior(cfg.code_prior_weight).add_to(H, g, layout, state))
+    def alone(term) -> tuple[float, float]:
+        H = torch.zeros(layout.dim, layout.dim, dtype=dtype, device=device)
+        g = torch.zeros(layout.dim, dtype=dtype, device=device)
+        term.add_to(H, g, layout, state)
+        return along(H, g)
+
+    out = {"photometric": along(*data({"geometric": False})), "geometric": along(*data({"photometric": False}))}
+    for term in window.level_terms(lvl, window.sparse_terms()):  # the solve's own terms, at the prior's full weight
+        out[LABELS.get(type(term).__name__, type(term).__name__)] = alone(term)
+    out["code prior"] = alone(CodePrior(cfg.code_prior_weight))
     return out
 
 

@@ -34,7 +34,7 @@ from codeslam.constants import MAX_PROXIMITY, MIN_PROXIMITY
 from codeslam.geometry.camera import PinholeCamera
 from codeslam.geometry.lie import se3_inverse, so3_angle_host
 from codeslam.sfm.config import SfMConfig
-from codeslam.sfm.keyframes import Keyframe, build_levels
+from codeslam.sfm.keyframes import Keyframe, LevelData, build_levels
 from codeslam.sfm.normal_equations import assemble
 from codeslam.sfm.pairs import view_overlap
 from codeslam.sfm.priors import AffinePrior, CodePrior
@@ -329,6 +329,28 @@ class SlidingWindow:
         return id_pairs, pairs, state, VariableLayout.for_sfm(F_, C, len(id_pairs), self.cfg.sfm.affine_brightness,
                                                              self._fixed())
 
+    def sparse_terms(self) -> list:
+        """The solve's terms that do not depend on the pyramid level, built once per solve: the matched keypoints
+        between keyframes and the consecutive keyframes' velocity prior."""
+        terms = [StackedReprojectionTerm(self._pair_terms(), self.cfg.free_scale)]
+        if self.cfg.motion_prior_acceleration > 0:
+            terms.append(VelocityPrior.consecutive([k.timestamp for k in self.keyframes],
+                                                   self.cfg.motion_prior_acceleration))
+        return terms
+
+    def level_terms(self, level: LevelData, sparse_terms: list, prior_scale: float = 1.0) -> list:
+        """Every term of a solve at ``level`` beside the pair residuals and the code and affine priors (those are
+        :class:`~codeslam.sfm.solver.PairProblem`'s own): the marginal prior (its information times
+        ``prior_scale``), ``sparse_terms`` (:meth:`sparse_terms`) and the scale priors."""
+        prior = self._positioned_prior(prior_scale)
+        terms = ([] if prior is None else [prior]) + sparse_terms
+        frames = list(range(len(self.keyframes)))
+        if self.cfg.depth_scale_sigma > 0:  # each keyframe's scale near the network's prediction
+            terms.append(DepthScalePrior(level, frames, self.cfg.depth_scale_sigma))
+        if self.cfg.window_scale_sigma > 0:  # the window's scale as a whole near the network's
+            terms.append(WindowScalePrior(level, frames, self.cfg.window_scale_sigma))
+        return terms
+
     def optimise(self, interrupted: Callable[[], bool] | None = None) -> WindowReport:
         """Jointly optimise the codes and poses of the window's keyframes (paper Sec. 4.1/4.3), coarse to fine,
         from their current values; writes the results back into the keyframes. ``interrupted()`` is asked before
@@ -340,25 +362,14 @@ class SlidingWindow:
         cfg: SfMConfig = self.cfg.sfm
         dtype, device = self._tensors()
         id_pairs, pairs, state, layout = self.problem()
-        F_ = state.codes.shape[0]
         levels = build_levels([k.view for k in self.keyframes], cfg.pyramid_levels, dtype, device)
         n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
-        # matched keypoints: level-independent
-        sparse_terms = [StackedReprojectionTerm(self._pair_terms(), self.cfg.free_scale)]
-        if self.cfg.motion_prior_acceleration > 0:  # consecutive keyframes' velocities: level-independent too
-            sparse_terms.append(VelocityPrior.consecutive([k.timestamp for k in self.keyframes],
-                                                          self.cfg.motion_prior_acceleration))
+        sparse_terms = self.sparse_terms()
 
         def problem_at(lvl: int) -> PairProblem:
             # Coarser levels sum over fewer pixels: scale the prior alike so it keeps its weight against the data.
             scale = levels[lvl].uv.shape[0] / n_prior if self.cfg.scale_prior_with_level else 1.0
-            prior = self._positioned_prior(scale)
-            terms = ([] if prior is None else [prior]) + sparse_terms
-            if self.cfg.depth_scale_sigma > 0:  # each keyframe's scale near the network's prediction
-                terms.append(DepthScalePrior(levels[lvl], list(range(F_)), self.cfg.depth_scale_sigma))
-            if self.cfg.window_scale_sigma > 0:  # the window's scale as a whole near the network's
-                terms.append(WindowScalePrior(levels[lvl], list(range(F_)), self.cfg.window_scale_sigma))
-            return PairProblem(levels[lvl], pairs, cfg, terms)
+            return PairProblem(levels[lvl], pairs, cfg, self.level_terms(levels[lvl], sparse_terms, scale))
 
         state, report.levels, _ = coarse_to_fine(problem_at, state, layout, cfg,
                                                  zip(cfg.pyramid_levels, cfg.max_iterations),
