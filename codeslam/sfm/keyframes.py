@@ -117,13 +117,11 @@ class LevelData:
     def prox(self, codes: torch.Tensor) -> torch.Tensor:
         """codes (F, C) -> (F, 1, H, W) decoded proximity ``prox0 + J c`` (exact for a linear decoder)."""
         F_, C, H, W = self.jac.shape
-        if self.scale_entry:  # the scale is not linear in proximity: avg_depth_at applies it
-            return self.prox0 + torch.bmm(codes[:, None, :C - 1], self.jac.reshape(F_, C, H * W)[:, :C - 1]
-                                          ).reshape(F_, 1, H, W)
+        k = C - 1 if self.scale_entry else C  # the scale is not linear in proximity: avg_depth_at applies it
         # One (1, C) x (C, N) product per frame. torch.einsum("fchw,fc->fhw") chose a batched matrix-vector
         # product over the transposed Jacobian instead: 5.1 against 0.12 ms at C = 64, 4 x 128x96, 2 threads (the
         # same values to the bit), about 6% of a SLAM window solve, which evaluates this at every step.
-        return self.prox0 + torch.bmm(codes.unsqueeze(1), self.jac.reshape(F_, C, H * W)).reshape(F_, 1, H, W)
+        return self.prox0 + torch.bmm(codes[:, None, :k], self.jac.reshape(F_, C, H * W)[:, :k]).reshape(F_, 1, H, W)
 
     def avg_depth_at(self, codes: torch.Tensor) -> torch.Tensor:
         """(F,) the average depth a each frame's proximity is read with: ``a exp(s)`` with a scale entry (the

@@ -399,11 +399,12 @@ class WindowConfig:
     ``depth_scale_sigma`` on the whole depth: the code then fits a view's shape at whatever depth its span holds
     it, and the scale is left to the data and the priors. Off by default: measured (docs/results/slam_table.md,
     twenty-fifth session; the window's normal equations with it checked against autograd in float64), the whole
-    suite's network runs went 1.31x worse in geometric mean (walk 42 0.232 -> 0.135 m and hand-held 52 0.030 ->
+    suite's 18 network runs went 1.34x worse in geometric mean (walk 42 0.232 -> 0.135 m and hand-held 52 0.030 ->
     0.016 m better; the HoloLens walk 0.144 -> 0.262 m, the walk preset 0.064 -> 0.133 m, walk 54 0.145 -> 0.397
     m): the maps no longer grow with the span, they slide down at turns (walk 43: from 0.76 to 0.36 of the truth
     over frames 98-115, scale drift 0.42) with or without the velocity prior, with ``depth_scale_sigma`` 0.1 or
-    ``window_scale_sigma`` 0.05, and with each new keyframe started at the map's scale."""
+    ``window_scale_sigma`` 0.05, and with each new keyframe started at the map's scale. With ``size: 6`` walk 42
+    reaches 0.063 m (0.45% of its path) but the suite is still 1.13x worse and the solves twice as long."""
     interruptible: bool = True
     """Parallel mapping: a keyframe the tracker needs at once (the last one is leaving the view) stops the running
     window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops

@@ -240,21 +240,19 @@ class StackedReprojectionTerm:
         return 0 if self.num_pairs == 0 else int(self.pid.shape[0])
 
     def _residuals(self, state: SfMState):
-        """-> r (N, 2), x (N, 3) the points in B, R_BA (N, 3, 3), proximity (N,), all matches at once."""
+        """-> r (N, 2), x (N, 3) the points in B, R_BA (N, 3, 3), proximity (N,) and the average depth it is read
+        with (a exp(s) with the scale entry), all matches at once."""
         dtype, device = state.poses.dtype, state.poses.device
         T_BA = relative_pose(state.poses[self.a], state.poses[self.b])[self.pid]  # (N, 4, 4) T_wB^-1 T_wA
         codes = state.codes[self.a][self.pid].to(self.jac_t.dtype)  # (N, C) c_A of each match
-        if self.scaled:
-            prox = self.prox0 + (codes[:, :-1] * self.jac_t[:, :-1]).sum(-1)
-            self._a_eff = self.avg_depth * torch.exp(codes[:, -1])
-        else:
-            prox = self.prox0 + (codes * self.jac_t).sum(-1)  # (N,) p0 + J c
-            self._a_eff = self.avg_depth
-        X = (self.ray_a * prox_to_depth(prox, self._a_eff)[:, None]).to(dtype)  # X_A = D ray (Eq. 4 inverted)
+        k = codes.shape[1] - 1 if self.scaled else codes.shape[1]  # the scale entry is not linear in proximity
+        prox = self.prox0 + (codes[:, :k] * self.jac_t[:, :k]).sum(-1)  # (N,) p0 + J c
+        a = self.avg_depth * torch.exp(codes[:, -1]) if self.scaled else self.avg_depth  # a exp(s): D exp(s)
+        X = (self.ray_a * prox_to_depth(prox, a)[:, None]).to(dtype)  # X_A = D ray (Eq. 4 inverted)
         R = T_BA[:, :3, :3]
         x = (R @ X[..., None]).squeeze(-1) + T_BA[:, :3, 3]  # x = T_BA X_A
         r = project(x, self.camera.params(dtype, device)) - self.uv_b.to(dtype=dtype, device=device)
-        return r, x, R, prox
+        return r, x, R, prox, a
 
     def _robust(self, r: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return _robust(r, x, self.sigma, self.huber, self.weight)
@@ -262,18 +260,18 @@ class StackedReprojectionTerm:
     def cost(self, state: SfMState) -> torch.Tensor:
         if len(self) == 0:
             return state.poses.new_zeros(())
-        r, x, _, _ = self._residuals(state)
+        r, x, *_ = self._residuals(state)
         return self._robust(r, x)[0].sum()
 
     def jacobians(self, state: SfMState) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """-> r (N, 2), J (N, 2, 12 + C) over [pose A, pose B, code A] of each match's pair, IRLS weights (N,)."""
-        r, x, R, prox = self._residuals(state)
+        r, x, R, prox, a = self._residuals(state)
         dpi = project_jac(x, self.camera.params(x.dtype, x.device))  # (N, 2, 3)
         eye = torch.eye(3, dtype=x.dtype, device=x.device).expand(x.shape[0], 3, 3)
         J_rel = dpi @ torch.cat([eye, -hat(x)], dim=-1)  # (N, 2, 6): dpi/dx [I, -x^]
         Ad, _ = relative_pose_jacobians(state.poses[self.b])  # (P, 6, 6): d xi_BA / d xi_A = Ad_{T_Bw} = -d/d xi_B
         J_A = J_rel @ Ad[self.pid]
-        dd_dp = d_depth_d_prox(prox, self._a_eff)  # (N,)
+        dd_dp = d_depth_d_prox(prox, a)  # (N,)
         dx_dd = (R @ self.ray_a.to(x.dtype)[..., None])  # (N, 3, 1): R_BA ray
         jac = self.jac_t
         if self.scaled:  # d D / d s = D = (d D / d p) (-p (1 - p))
