@@ -161,3 +161,19 @@ def test_no_texture_gives_no_features_and_pnp_refuses():
     assert len(f) == 0
     res = solve_pnp(np.zeros((3, 3)), np.zeros((3, 2)), canonical_camera(128, 96), 2.0, 10)
     assert not res.ok
+
+
+def test_the_frontends_numpy_pose_inverse_is_the_torch_one_to_the_last_bit():
+    """The sparse front-end inverts its NumPy poses itself (speed); it must give what geometry.lie.se3_inverse
+    gives, bit for bit, so that moving it changed no trajectory; and it is an inverse."""
+    from codeslam.geometry.lie import se3_exp
+    from codeslam.slam.frontend import _se3_inverse
+
+    g = torch.Generator().manual_seed(3)
+    for _ in range(200):
+        xi = torch.randn(6, generator=g, dtype=torch.float64) * torch.tensor([2.0, 2.0, 2.0, 1.0, 1.0, 1.0],
+                                                                               dtype=torch.float64)
+        T = se3_exp(xi)
+        inv = _se3_inverse(T.numpy())
+        assert np.array_equal(inv, se3_inverse(T).numpy())
+        np.testing.assert_allclose(inv @ T.numpy(), np.eye(4), atol=1e-12)
