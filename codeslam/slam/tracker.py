@@ -33,7 +33,6 @@ from codeslam.slam.alignment import (
     TrackingReference,
     TrackingState,
     fixed_depth_decoder,
-    real_pixel_pyramid,
 )
 from codeslam.slam.config import TrackerConfig
 from codeslam.slam.features import pose_distance
@@ -201,6 +200,8 @@ class PhotometricTracker:
         visited = [lvl for lvl, _ in levels]
         real = None if valid is None else self._real_pixel_pyramid(valid, visited, reference.dtype, reference.device)
         frame = FramePyramid(image, camera, valid, visited, reference.dtype, reference.device, real)  # only those
+        if valid is not None and real is None:  # a mask not seen before: its levels came with the frame's
+            self._real_pixels = (valid.clone(), (reference.dtype, reference.device), frame.real)
         current = TrackingState.from_sfm(state)
         keypoints, others = None, []
         for term in terms:  # the keypoints' residuals in the tracker's own layout, the motion prior as it is
@@ -218,19 +219,19 @@ class PhotometricTracker:
                 iterations, kp)
 
     def _real_pixel_pyramid(self, valid: torch.Tensor, levels: list[int], dtype: torch.dtype,
-                            device: torch.device) -> dict[int, torch.Tensor]:
-        """:func:`~codeslam.slam.alignment.real_pixel_pyramid` of a frame's validity mask at ``levels`` (those the
-        alignment visits), kept while the frames' mask stays the same (a reader that masks a fixed border gives
-        every frame the same one) and reused for any levels it covers. A rolling-shutter rectification gives every
-        frame its own mask: then only the visited levels are built (a frame started from the matches visits 1 and
-        0, and the four levels took 1.1 of its 18.5 ms on TUM fr1/rpy). A level's mask does not depend on how many
-        levels are built: each is made from the one below it."""
+                            device: torch.device) -> dict[int, torch.Tensor] | None:
+        """The real-pixel masks (:func:`~codeslam.slam.alignment.real_pixel_pyramid`) of a frame's validity mask at
+        ``levels`` (those the alignment visits) if the last frame's mask was the same and its masks cover them (a
+        reader that masks a fixed border gives every frame the same one), else None: then
+        :class:`~codeslam.slam.alignment.FramePyramid` builds them with the frame's pyramid and they are kept
+        from there. A rolling-shutter rectification gives every frame its own mask: then only the visited levels
+        are kept (a frame started from the matches visits 1 and 0, and the four levels took 1.1 of its 18.5 ms on
+        TUM fr1/rpy). A level's mask does not depend on how many levels are built: each is made from the one below
+        it."""
         c = self._real_pixels
         same = (c is not None and c[1] == (dtype, device) and c[0].shape == valid.shape
                 and c[0].device == valid.device and set(levels) <= c[2].keys() and torch.equal(c[0], valid))
-        if not same:
-            self._real_pixels = (valid.clone(), (dtype, device), real_pixel_pyramid(valid, levels, dtype, device))
-        return self._real_pixels[2]
+        return c[2] if same else None
 
     def _align_generic(self, keyframe: Keyframe, code: torch.Tensor, image: torch.Tensor, camera: PinholeCamera,
                        valid: torch.Tensor | None, state: SfMState, layout: VariableLayout, terms: list,

@@ -265,6 +265,29 @@ def test_validity_masks_track_alike_and_the_mask_pyramid_is_kept_while_the_mask_
             assert (dedicated._real_pixels[2] is kept) == (j == 2)
 
 
+def test_a_frames_mask_pyramid_built_with_its_image_is_the_masks_own_bit_for_bit():
+    """FramePyramid builds an unseen mask's pyramid in the same call as the image's: the same masks and levels as
+    real_pixel_pyramid's, to the last bit."""
+    from codeslam.slam.alignment import FramePyramid, real_pixel_pyramid
+
+    frames, *_ = _scene()
+    f = frames[1]
+    valid = torch.ones(f.camera.height, f.camera.width, dtype=torch.bool)
+    valid[-3:] = False
+    valid[10:20, 30:40] = False
+    for dtype in (torch.float32, D):
+        for levels in ((1, 0), (3, 2, 1, 0)):
+            real = real_pixel_pyramid(valid, levels, dtype, torch.device("cpu"))
+            given = FramePyramid(f.gray, f.camera, valid, levels, dtype, torch.device("cpu"), real)
+            built = FramePyramid(f.gray, f.camera, valid, levels, dtype, torch.device("cpu"))
+            assert built.real.keys() == real.keys() == set(levels)
+            for lvl in levels:
+                assert torch.equal(built.real[lvl], real[lvl])
+                assert torch.equal(built.levels[lvl].stack, given.levels[lvl].stack)
+                assert float(built.levels[lvl].stack[0, 3].min()) == 0.0  # the mask's holes are there
+    assert FramePyramid(f.gray, f.camera, None, (0,), D, torch.device("cpu")).real is None
+
+
 @pytest.fixture(scope="module")
 def tum_model():
     from codeslam.depthmodel import DepthModel
