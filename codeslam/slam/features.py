@@ -88,6 +88,7 @@ class ORBExtractor:
                  fast_threshold: int = 12, edge: int = 16) -> None:
         cv2 = _cv2()
         self.edge = edge
+        self._mask: tuple[np.ndarray, np.ndarray] | None = None  # the last validity and its eroded mask
         self.orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=scale_factor, nlevels=n_levels,
                                   edgeThreshold=edge, patchSize=31, fastThreshold=fast_threshold)
 
@@ -96,8 +97,12 @@ class ORBExtractor:
         cv2 = _cv2()
         mask = None
         if valid is not None and not bool(valid.all()):
-            k = 2 * self.edge + 1  # keep the descriptor patches off the invalid pixels
-            mask = cv2.erode(valid.astype(np.uint8) * 255, np.ones((k, k), np.uint8))
+            # A reader that masks a fixed border (undistortion) gives every frame the same validity: its erosion
+            # is kept (0.29 ms a frame at 512x384 against 0.02 ms for the comparison).
+            if self._mask is None or not np.array_equal(self._mask[0], valid):
+                k = 2 * self.edge + 1  # keep the descriptor patches off the invalid pixels
+                self._mask = (valid.copy(), cv2.erode(valid.astype(np.uint8) * 255, np.ones((k, k), np.uint8)))
+            mask = self._mask[1]
         kps, desc = self.orb.detectAndCompute(gray_u8, mask)
         if desc is None or not kps:
             return Features.empty()

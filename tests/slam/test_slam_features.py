@@ -177,3 +177,25 @@ def test_the_frontends_numpy_pose_inverse_is_the_torch_one_to_the_last_bit():
         inv = _se3_inverse(T.numpy())
         assert np.array_equal(inv, se3_inverse(T).numpy())
         np.testing.assert_allclose(inv @ T.numpy(), np.eye(4), atol=1e-12)
+
+
+def test_orb_keeps_off_invalid_pixels_and_follows_a_changed_mask():
+    """Keypoints keep ``edge`` pixels from the invalid ones; the eroded mask kept for a repeated validity is the one
+    a fresh extractor makes, and a changed validity is eroded anew."""
+    A, _ = _pair()
+    img = to_uint8(A.gray)
+    H, W = img.shape
+    left = np.ones((H, W), bool)
+    left[:, : W // 2] = False
+    top = np.ones((H, W), bool)
+    top[: H // 2] = False
+    orb = ORBExtractor(n_features=800, fast_threshold=8)
+    for valid in (left, left.copy(), top, left):
+        got = orb(img, valid)
+        fresh = ORBExtractor(n_features=800, fast_threshold=8)(img, valid)
+        assert len(got) > 20
+        assert np.array_equal(got.uv, fresh.uv) and np.array_equal(got.desc, fresh.desc)
+        if valid is top:
+            assert got.uv[:, 1].min() >= H // 2 + orb.edge - 1
+        else:
+            assert got.uv[:, 0].min() >= W // 2 + orb.edge - 1
