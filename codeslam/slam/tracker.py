@@ -198,7 +198,7 @@ class PhotometricTracker:
         cfg, sfm_cfg = self.cfg, self.sfm_cfg
         reference = self.reference(keyframe, code)
         visited = [lvl for lvl, _ in levels]
-        real = None if valid is None else self._real_pixel_pyramid(valid, visited, reference.dtype, reference.device)
+        real = None if valid is None else self._kept_real_pixels(valid, visited, reference.dtype, reference.device)
         frame = FramePyramid(image, camera, valid, visited, reference.dtype, reference.device, real)  # only those
         if valid is not None and real is None:  # a mask not seen before: its levels came with the frame's
             self._real_pixels = (valid.clone(), (reference.dtype, reference.device), frame.real)
@@ -218,7 +218,7 @@ class PhotometricTracker:
         return (current.to_sfm(), cost, ev.valid, ev.r, ev.sigma, reference.levels[cfg.pyramid_levels[-1]].gray,
                 iterations, kp)
 
-    def _real_pixel_pyramid(self, valid: torch.Tensor, levels: list[int], dtype: torch.dtype,
+    def _kept_real_pixels(self, valid: torch.Tensor, levels: list[int], dtype: torch.dtype,
                             device: torch.device) -> dict[int, torch.Tensor] | None:
         """The real-pixel masks (:func:`~codeslam.slam.alignment.real_pixel_pyramid`) of a frame's validity mask at
         ``levels`` (those the alignment visits) if the last frame's mask was the same and its masks cover them (a
