@@ -147,21 +147,13 @@ class FrameLevel:
         return self.stack.shape[-1]
 
 
-def real_pixel_pyramid(valid: torch.Tensor, levels: Sequence[int], dtype: torch.dtype,
-                       device: torch.device) -> dict[int, torch.Tensor]:
-    """(H, W) bool, an image's real pixels -> per level in ``levels`` (1, 1, H_l, W_l): 1 where the pyramid pixel
-    comes from real pixels only, else 0 (as :func:`~codeslam.sfm.keyframes.build_levels`). The same for every
-    frame of a sequence whose reader masks a fixed border, so the tracker keeps the last one."""
-    pyr = image_pyramid(valid.to(dtype=dtype, device=device)[None, None], max(levels) + 1)
-    return {lvl: real_pixels(pyr[lvl]) for lvl in sorted(set(levels))}
-
-
 class FramePyramid:
     """The pyramid levels ``levels`` of a frame to be tracked: ``image`` (1, H, W) grey or (3, H, W) RGB seen by
-    ``camera``, ``valid`` (H, W) bool its real pixels (None: all), or ``real`` their
-    :func:`real_pixel_pyramid` computed before. The same pyramid, gradients and mask as
-    :func:`~codeslam.sfm.keyframes.build_levels`, for the one image. ``real`` (attribute): the real-pixel masks
-    used (None without ``valid``), for the caller to keep for the next frame with the same mask."""
+    ``camera``, ``valid`` (H, W) bool its real pixels (None: all), or ``real`` their masks per level computed
+    before ((1, 1, H_l, W_l): 1 where the pyramid pixel comes from real pixels only, else 0). The same pyramid,
+    gradients and mask as :func:`~codeslam.sfm.keyframes.build_levels`, for the one image. ``real`` (attribute):
+    the real-pixel masks used (None without ``valid``), for the caller to keep for the next frame with the same
+    mask (a reader that masks a fixed border gives every frame the same one)."""
 
     def __init__(self, image: torch.Tensor, camera: PinholeCamera, valid: torch.Tensor | None,
                  levels: Sequence[int], dtype: torch.dtype, device: torch.device,

@@ -220,14 +220,13 @@ class PhotometricTracker:
 
     def _kept_real_pixels(self, valid: torch.Tensor, levels: list[int], dtype: torch.dtype,
                             device: torch.device) -> dict[int, torch.Tensor] | None:
-        """The real-pixel masks (:func:`~codeslam.slam.alignment.real_pixel_pyramid`) of a frame's validity mask at
-        ``levels`` (those the alignment visits) if the last frame's mask was the same and its masks cover them (a
-        reader that masks a fixed border gives every frame the same one), else None: then
-        :class:`~codeslam.slam.alignment.FramePyramid` builds them with the frame's pyramid and they are kept
-        from there. A rolling-shutter rectification gives every frame its own mask: then only the visited levels
-        are kept (a frame started from the matches visits 1 and 0, and the four levels took 1.1 of its 18.5 ms on
-        TUM fr1/rpy). A level's mask does not depend on how many levels are built: each is made from the one below
-        it."""
+        """The real-pixel masks of a frame's validity mask at ``levels`` (those the alignment visits) if the last
+        frame's mask was the same and its masks cover them (a reader that masks a fixed border gives every frame
+        the same one), else None: then :class:`~codeslam.slam.alignment.FramePyramid` builds them with the
+        frame's pyramid and they are kept from there (its ``real``). A rolling-shutter rectification gives every
+        frame its own mask: then only the visited levels are kept (a frame started from the matches visits 1 and
+        0, and the four levels took 1.1 of its 18.5 ms on TUM fr1/rpy). A level's mask does not depend on how many
+        levels are built: each is made from the one below it."""
         c = self._real_pixels
         same = (c is not None and c[1] == (dtype, device) and c[0].shape == valid.shape
                 and c[0].device == valid.device and set(levels) <= c[2].keys() and torch.equal(c[0], valid))

@@ -267,8 +267,10 @@ def test_validity_masks_track_alike_and_the_mask_pyramid_is_kept_while_the_mask_
 
 def test_a_frames_mask_pyramid_built_with_its_image_is_the_masks_own_bit_for_bit():
     """FramePyramid builds an unseen mask's pyramid in the same call as the image's: the same masks and levels as
-    real_pixel_pyramid's, to the last bit."""
-    from codeslam.slam.alignment import FramePyramid, real_pixel_pyramid
+    the mask's own pyramid gives (build_levels' definition: 1 where only real pixels contribute), to the last bit."""
+    from codeslam.geometry.image import image_pyramid
+    from codeslam.sfm.keyframes import real_pixels
+    from codeslam.slam.alignment import FramePyramid
 
     frames, *_ = _scene()
     f = frames[1]
@@ -277,7 +279,8 @@ def test_a_frames_mask_pyramid_built_with_its_image_is_the_masks_own_bit_for_bit
     valid[10:20, 30:40] = False
     for dtype in (torch.float32, D):
         for levels in ((1, 0), (3, 2, 1, 0)):
-            real = real_pixel_pyramid(valid, levels, dtype, torch.device("cpu"))
+            own = image_pyramid(valid.to(dtype)[None, None], max(levels) + 1)  # the mask's pyramid alone
+            real = {lvl: real_pixels(own[lvl]) for lvl in levels}
             given = FramePyramid(f.gray, f.camera, valid, levels, dtype, torch.device("cpu"), real)
             built = FramePyramid(f.gray, f.camera, valid, levels, dtype, torch.device("cpu"))
             assert built.real.keys() == real.keys() == set(levels)
