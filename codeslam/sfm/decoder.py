@@ -161,6 +161,13 @@ class ScaledDecoder(LinearDecoder):
             return p
         return depth_to_prox(prox_to_depth(p, self.avg_depth) * torch.exp(code[-1]), self.avg_depth)
 
+    @staticmethod
+    def scale_column(prox: torch.Tensor) -> torch.Tensor:
+        """The scale's Jacobian column in proximity at the linear proximity ``prox``: with the depth read at the
+        average depth ``a' = a exp(s)``, ``d D / d s = D = (d D / d p) (-p (1 - p))``, so the residuals' compact
+        form ``(d r / d p) J`` holds the scale with the column ``-p (1 - p)`` (and ``d D / d p`` taken at a')."""
+        return -prox * (1.0 - prox)
+
     def principal(self, k: int):
         """Not defined: take the principal directions first, then wrap (:meth:`wrap`)."""
         raise CodeSLAMError("a scaled decoder is made from the principal one, not the other way round")

@@ -129,13 +129,12 @@ class LevelData:
         return self.avg_depth * torch.exp(codes[:, -1]) if self.scale_entry else self.avg_depth
 
     def refresh_scale_column(self, codes: torch.Tensor) -> None:
-        """With a scale entry: the scale's column of ``jac`` at ``codes``. With ``a' = a exp(s)``, ``d D / d s =
-        D = (d D / d p) (-p (1 - p))``: the column ``-p (1 - p)`` at the current linear proximity p, in the
-        compact form ``d r / d c = s_A J[u]`` of the residuals (which carry ``d D / d p`` at a')."""
+        """With a scale entry: the scale's column of ``jac`` at ``codes``
+        (:meth:`~codeslam.sfm.decoder.ScaledDecoder.scale_column` at the current linear proximity), in the compact
+        form ``d r / d c = s_A J[u]`` of the residuals (which carry ``d D / d p`` at ``a exp(s)``)."""
         if not self.scale_entry:
             return
-        p = self.prox(codes.detach())[:, 0]  # (F, H, W)
-        col = -p * (1.0 - p)
+        col = ScaledDecoder.scale_column(self.prox(codes.detach())[:, 0])  # (F, H, W)
         self.jac[:, -1] = col
         if "jac_channels_last" in self.__dict__:
             self.__dict__["jac_channels_last"][:, -1] = col  # the cached copy of jac (jac_channels_last)

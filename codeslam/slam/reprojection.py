@@ -27,6 +27,7 @@ from codeslam.geometry.camera import PinholeCamera, project, project_jac
 from codeslam.geometry.image import bilinear_sample
 from codeslam.geometry.lie import hat, se3_act
 from codeslam.geometry.proximity import d_depth_d_prox, prox_to_depth
+from codeslam.sfm.decoder import ScaledDecoder
 from codeslam.sfm.normal_equations import add_local_blocks, batched_mv
 from codeslam.sfm.residuals import huber_cost_and_weight
 from codeslam.sfm.variables import CODE, POSE, POSE_DIM, BlockId, SfMState, VariableLayout
@@ -274,8 +275,8 @@ class StackedReprojectionTerm:
         dd_dp = d_depth_d_prox(prox, a)  # (N,)
         dx_dd = (R @ self.ray_a.to(x.dtype)[..., None])  # (N, 3, 1): R_BA ray
         jac = self.jac_t
-        if self.scaled:  # d D / d s = D = (d D / d p) (-p (1 - p))
-            jac = torch.cat([jac[:, :-1], (-prox * (1.0 - prox))[:, None]], dim=1)
+        if self.scaled:  # the scale's column at the current proximity
+            jac = torch.cat([jac[:, :-1], ScaledDecoder.scale_column(prox)[:, None]], dim=1)
         J_c = (dpi @ dx_dd) * (dd_dp[:, None, None] * jac[:, None, :]).to(x.dtype)  # (N, 2, C)
         _, w = self._robust(r, x)
         return r, torch.cat([J_A, -J_A, J_c], dim=-1), w
