@@ -8,7 +8,9 @@ walk, a 300-frame hand-held, a noisy corridor, a walk at 30 frames/s, a fast tur
 blank wall), with the network's depth, four of them again with the dataset's own depth (``--depth-model
 standin``), which separates the tracker from the network, and the walk towards a blank wall with the network's
 code Jacobian but the dataset's depth at the zero code (``--depth-model true-prior``), which separates the
-network's zero-code depth from the rest.
+network's zero-code depth from the rest. ``--long`` adds a walk of 39 m, about three times the path of the other
+walks (seed 71, 450 frames), with the network's and the dataset's depth: whether tracking, the map's scale and memory
+hold over a long way.
 
 The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 40 minutes on one
 core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DATA --out OUT/NAME -q`` plus the
@@ -16,7 +18,7 @@ core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DAT
 cores; ``--weights W`` goes to every run but the stand-in ones, whose depth is the dataset's). The table reads each
 run's ``result.json``:
 
-    python scripts/slam_suite.py OUT [--seqs DIR] [--jobs 2] [--only NAME ...] [-- --threads 1 --config C.yaml]
+    python scripts/slam_suite.py OUT [--seqs DIR] [--jobs 2] [--long] [--only NAME ...] [-- --threads 1 --config C.yaml]
     python scripts/slam_suite.py --table OUT [OUT2 ...]   # the table again; several folders side by side
 
 Frames per second are comparable only between runs that ran alone, or in pairs in the same run of this script.
@@ -78,6 +80,8 @@ SEQUENCES = {s.name: s for s in (
     Sequence("walk54", 300, "walk", 30, 54),
     Sequence("ft55", 60, "fast-turn", 10, 55),
     Sequence("walk56", 150, "walk", 10, 56),
+    # seed 71: a walk of 39 m, about three times the other walks' paths (450 frames); rendered and run only with --long
+    Sequence("walk71", 450, "walk", 10, 71),
 )}
 
 # (run name, dataset: a folder under ../shared/data or a generator sequence's name, extra codeslam slam arguments)
@@ -106,6 +110,13 @@ RUNS = (
     ("walk_standin", "walk10", ("--depth-model", "standin")),
     ("walk56_standin", "walk56", ("--depth-model", "standin")),
     ("walk56_trueprior", "walk56", ("--depth-model", "true-prior")),
+)
+
+# Runs added by --long (or named with --only): whether tracking, the map's scale and memory hold over a path about
+# three times the other walks' (about 2.5 minutes each at one thread; the session of 2026-12-02, twenty-seventh).
+LONG_RUNS = (
+    ("walk71", "walk71", ()),
+    ("walk71_standin", "walk71", ("--depth-model", "standin")),
 )
 
 
@@ -164,7 +175,8 @@ def row(folder: Path) -> list[str]:
 
 def table(outs: list[Path]) -> str:
     """The runs any of ``outs`` holds (a run folder or its log), in the suite's order, one row each."""
-    names = [name for name, _, _ in RUNS if any((o / name).exists() or (o / f"{name}.log").exists() for o in outs)]
+    names = [name for name, _, _ in RUNS + LONG_RUNS
+             if any((o / name).exists() or (o / f"{name}.log").exists() for o in outs)]
     head = ["failed", "ATE Sim(3) m (never moving)", "of path", "rotation °", "RPE mm (after the scale)", "scale",
             "scale drift", "frames/s"]
     if len(outs) == 1:
@@ -183,6 +195,13 @@ def table(outs: list[Path]) -> str:
     return "\n".join(lines)
 
 
+def selected_runs(only: list[str] | None, long: bool = False) -> list[tuple[str, str, tuple[str, ...]]]:
+    """The runs to make, in the suite's order: every one of RUNS (or those ``only`` names), and LONG_RUNS with
+    ``long`` (all of them, or those ``only`` names whatever ``long`` says)."""
+    runs = [r for r in RUNS if only is None or r[0] in only]
+    return runs + [r for r in LONG_RUNS if (long and only is None) or (only is not None and r[0] in only)]
+
+
 def main() -> None:
     argv = sys.argv[1:]
     passthrough = ["--threads", "1"]
@@ -195,6 +214,7 @@ def main() -> None:
                     help="Where the generator sequences are rendered (default suite_seqs or $CODESLAM_SEQS).")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--only", nargs="+", default=None, help="Run only these (names as in the table).")
+    ap.add_argument("--long", action="store_true", help="Also the long runs (LONG_RUNS: a 450-frame walk).")
     ap.add_argument("--table", action="store_true", help="Only print the table of existing run folders.")
     args = ap.parse_args(argv)
     if args.table:
@@ -202,11 +222,14 @@ def main() -> None:
         return
     out = args.out[0]
     out.mkdir(parents=True, exist_ok=True)
-    runs = [r for r in RUNS if args.only is None or r[0] in args.only]
+    unknown = sorted(set(args.only or ()) - {r[0] for r in RUNS + LONG_RUNS})
+    if unknown:
+        ap.error(f"--only: no run named {', '.join(unknown)}")
+    runs = selected_runs(args.only, args.long)
     datasets = {name: dataset_path(data, args.seqs) for name, data, _ in runs}  # render before timing anything
     (out / "suite.json").write_text(json.dumps({"passthrough": passthrough, "runs": [r[0] for r in runs]}))
     # the longest first, so that two jobs end together
-    order = sorted(runs, key=lambda r: r[1] in ("hololens_dvmvs", "hh41"), reverse=True)
+    order = sorted(runs, key=lambda r: r[1] in ("hololens_dvmvs", "hh41", "walk71"), reverse=True)
     with ThreadPoolExecutor(args.jobs) as pool:
         for msg in pool.map(lambda r: run_one(r[0], datasets[r[0]], r[2], out, passthrough), order):
             print(msg, flush=True)

@@ -38,3 +38,18 @@ def test_the_table_reads_each_runs_scale_drift_and_marks_where_there_is_none(scr
     head2 = [c.strip() for c in side[0].strip("|").split("|")]
     walk42 = next([c.strip() for c in line.strip("|").split("|")] for line in side if line.startswith("| walk42 "))
     assert walk42[head2.index(f"{tmp_path.name}: scale drift")] == "1.49" and len(walk42) == len(head2)
+
+
+def test_the_long_runs_are_made_only_when_asked_for(script):
+    suite = script("slam_suite")
+
+    def names(runs):
+        return [r[0] for r in runs]
+
+    default = names(suite.selected_runs(None))
+    assert default == names(suite.RUNS) and "walk71" not in default
+    assert names(suite.selected_runs(None, long=True)) == default + ["walk71", "walk71_standin"]
+    assert names(suite.selected_runs(["walk42", "walk71"])) == ["walk42", "walk71"]  # --only reaches them too
+    assert names(suite.selected_runs(["tum"], long=True)) == ["tum"]  # --only wins over --long
+    assert all(data in suite.SEQUENCES for _, data, _ in suite.LONG_RUNS)
+    assert suite.SEQUENCES["walk71"].frames == 450
