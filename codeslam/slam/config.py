@@ -405,6 +405,21 @@ class WindowConfig:
     over frames 98-115, scale drift 0.42) with or without the velocity prior, with ``depth_scale_sigma`` 0.1 or
     ``window_scale_sigma`` 0.05, and with each new keyframe started at the map's scale. With ``size: 6`` walk 42
     reaches 0.063 m (0.45% of its path) but the suite is still 1.13x worse and the solves twice as long."""
+    map_prior_weight: float = 0.35
+    """A new keyframe's zero-code depth is moved this share of the way toward the map's depth in its view, low
+    frequencies and shape only (:mod:`codeslam.slam.map_prior`: the window's newest keyframe of the same map segment
+    splatted into the new view); 0 leaves the network's prior as it is (the paper). The network's errors are
+    view-dependent and mostly smooth, and the window corrects each keyframe's shape while it holds it; this passes
+    the correction on. Measured (docs/results/slam_table.md, twenty-eighth session; 1 thread, the suite's 18
+    network runs from start frames 0 and 1, 0 -> 0.35): 0.913x the ATE in geometric mean (walk 42 0.232 -> 0.174 m,
+    corridor 44 0.223 -> 0.129, walk 54 0.145 -> 0.108, the walk preset 0.064 -> 0.047, TUM 0.0133 -> 0.0117;
+    walk 56 0.511 -> 0.547, corridor 53 0.228 -> 0.244). With the dataset's depth (``--depth-model standin``) the
+    walk towards a blank wall went 0.049 -> 0.27 m: where the images carry no texture the map's depth is the
+    window's guess, and this passes it on. 0.25 and 0.5 were measured worse (0.92, at an 8-pixel low-pass)."""
+    map_prior_blur: float = 8.0
+    """Width (finest-level pixels, Gaussian sigma) of the low-pass through which the map corrects a new keyframe's
+    prior (``map_prior_weight``): the network's fine structure is its view's own, the map's splatted edges are not
+    passed on. 4 and 16 were measured worse than 8 (at weight 0.5; docs/results/slam_table.md)."""
     interruptible: bool = True
     """Parallel mapping: a keyframe the tracker needs at once (the last one is leaving the view) stops the running
     window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops
@@ -423,10 +438,16 @@ class WindowConfig:
             raise ConfigError(f"window.window_scale_sigma must be >= 0, got {self.window_scale_sigma}")
         if not self.motion_prior_acceleration >= 0:
             raise ConfigError(f"window.motion_prior_acceleration must be >= 0, got {self.motion_prior_acceleration}")
+        if not 0.0 <= self.map_prior_weight <= 1.0:
+            raise ConfigError(f"window.map_prior_weight must lie in [0, 1], got {self.map_prior_weight}")
+        if not self.map_prior_blur > 0:
+            raise ConfigError(f"window.map_prior_blur must be > 0, got {self.map_prior_blur}")
         if not (isinstance(self.code_directions, int) and self.code_directions >= 0):
             raise ConfigError(f"window.code_directions must be an integer >= 0, got {self.code_directions}")
         if self.free_scale and self.sfm.geometric_space != "log_depth":  # d r_geo / d s_B = -1 needs log depth
             raise ConfigError("window.free_scale needs window.sfm.geometric_space: log_depth")
+        if self.free_scale and self.map_prior_weight > 0:  # measured apart only; together a test's window diverged
+            raise ConfigError("window.free_scale needs window.map_prior_weight: 0 (the two together are not measured)")
         if self.sfm.rolling_shutter:  # the window's marginalisation and the tracker have no readout rotations
             raise ConfigError("window.sfm.rolling_shutter is supported by `codeslam sfm` only, not in SLAM")
 

@@ -24,6 +24,7 @@ torch releases the GIL inside its kernels, and the two threads share the map as 
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import threading
 from collections.abc import Callable, Iterator
@@ -34,8 +35,10 @@ import torch
 
 from codeslam.clock import NO_CLOCK, Clock
 from codeslam.geometry.lie import se3_inverse
+from codeslam.geometry.splat import splat_depth
 from codeslam.slam.config import SLAMConfig
-from codeslam.slam.frontend import SparseTrack, SparseTracker
+from codeslam.slam.frontend import KeyframeFeatures, SparseTrack, SparseTracker
+from codeslam.slam.map_prior import map_prior
 from codeslam.slam.window import MapKeyframe, SlidingWindow, WindowReport, WindowSnapshot
 
 
@@ -196,7 +199,7 @@ class Mapper:
         if it fails the window's checks. Marginalising before the solve keeps every solve at K keyframes (the
         paper's "4-keyframes setup") and linearises the prior at the previous window's optimum."""
         with torch_threads(self.decode_threads if self.parallel else None), self.clock("decode"):
-            kf = job.decode()
+            kf = self._prior_from_map(job.decode())
         if self.parallel:  # the tracker may switch to the keyframe now, before the window solve
             self._done.put(MappingResult(kf, None, None, job.frame_position, None, self.clock.split()))
             self._decoded.set()
@@ -223,6 +226,24 @@ class Mapper:
         return MappingResult(kf, report, marginalised, job.frame_position,
                              before if self.config.window.rollback and not report.rejected else None,
                              self.clock.split())  # parallel: the decoding's time went with the keyframe
+
+    def _prior_from_map(self, kf: MapKeyframe) -> MapKeyframe:
+        """The new keyframe with its zero-code depth moved toward the map's (``window.map_prior_weight``,
+        :mod:`codeslam.slam.map_prior`): the window's newest keyframe of the same map segment, at its current code,
+        splatted into the new view; its keypoints' 3D points follow. Unchanged before the segment's second keyframe
+        or where the map covers too little of the view."""
+        cfg = self.config.window
+        src = self.window.keyframes[-1] if self.window.keyframes else None
+        if cfg.map_prior_weight <= 0 or src is None or src.segment != kf.segment or not src.active:
+            return kf
+        depth = splat_depth(src.depth_map(0), src.view.camera, se3_inverse(kf.T_wc) @ src.T_wc, src.view.valid)
+        decoder = map_prior(kf.view.decoder, depth, cfg.map_prior_weight, cfg.map_prior_blur, kf.view.valid)
+        if decoder is kf.view.decoder:
+            return kf
+        kf = dataclasses.replace(kf, view=dataclasses.replace(kf.view, decoder=decoder))
+        if kf.sparse is not None and self.sparse is not None:
+            kf.sparse = KeyframeFeatures(kf.sparse.features, self.sparse.points(kf.sparse.features, kf.depth_map()))
+        return kf
 
     def _match(self, kf: MapKeyframe, ref: MapKeyframe | None, sparse: SparseTrack | None) -> None:
         """Matched keypoints between the new keyframe and the window's others, for the window's reprojection

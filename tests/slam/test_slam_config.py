@@ -58,6 +58,8 @@ def test_resolved_config_round_trips_through_yaml(tmp_path):
         "window: {code_directions: -1}\n",
         "window: {window_scale_sigma: -0.1}\n",
         "window: {max_runaway_share: 1.5}\n",
+        "window: {map_prior_weight: 1.5}\n",
+        "window: {map_prior_blur: 0}\n",
         "tracker: {feature_start_level: -2}\n",
         "tracker: {max_rotation_from_prediction_deg: -5}\n",
         "features: {retry_agreement: 1.5}\n",
@@ -98,4 +100,7 @@ def test_the_free_scale_is_refused_with_the_geometric_term_in_proximity(tmp_path
     with pytest.raises(ConfigError, match="free_scale needs window.sfm.geometric_space: log_depth"):
         load_config(path)
     path.write_text("window:\n  free_scale: true\n")
+    with pytest.raises(ConfigError, match="free_scale needs window.map_prior_weight: 0"):
+        load_config(path)
+    path.write_text("window:\n  free_scale: true\n  map_prior_weight: 0\n")
     assert load_config(path).window.free_scale
