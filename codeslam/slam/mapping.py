@@ -37,7 +37,7 @@ from codeslam.clock import NO_CLOCK, Clock
 from codeslam.geometry.lie import se3_inverse
 from codeslam.geometry.splat import splat_depth
 from codeslam.slam.config import SLAMConfig
-from codeslam.slam.frontend import KeyframeFeatures, SparseTrack, SparseTracker
+from codeslam.slam.frontend import SparseTrack, SparseTracker
 from codeslam.slam.map_prior import map_prior
 from codeslam.slam.window import MapKeyframe, SlidingWindow, WindowReport, WindowSnapshot
 
@@ -241,8 +241,7 @@ class Mapper:
         if decoder is kf.view.decoder:
             return kf
         kf = dataclasses.replace(kf, view=dataclasses.replace(kf.view, decoder=decoder))
-        if kf.sparse is not None and self.sparse is not None:
-            kf.sparse = KeyframeFeatures(kf.sparse.features, self.sparse.points(kf.sparse.features, kf.depth_map()))
+        self._refresh_points(kf)  # its features object is the network keyframe's, which nothing else holds
         return kf
 
     def _match(self, kf: MapKeyframe, ref: MapKeyframe | None, sparse: SparseTrack | None) -> None:
@@ -263,12 +262,14 @@ class Mapper:
                 self.window.matches[(other.id, kf.id)] = (ia, ib)
 
     def refresh_points(self) -> None:
-        """The window's keyframe points follow their codes after a solve (a new array, not an in-place edit)."""
-        if self.sparse is None:
-            return
+        """The window's keyframe points follow their codes after a solve."""
         for k in self.window.keyframes:
-            if k.sparse is not None:
-                k.sparse.xyz = self.sparse.points(k.sparse.features, k.depth_map())
+            self._refresh_points(k)
+
+    def _refresh_points(self, k: MapKeyframe) -> None:
+        """``k``'s keypoints' 3D points at its current depth (a new array, not an in-place edit)."""
+        if k.sparse is not None and self.sparse is not None:
+            k.sparse.xyz = self.sparse.points(k.sparse.features, k.depth_map())
 
     # ---- map maintenance from the tracking thread ----------------------------------------------------------
     def roll_back(self, before: WindowSnapshot) -> None:
