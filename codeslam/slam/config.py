@@ -420,6 +420,16 @@ class WindowConfig:
     """Width (finest-level pixels, Gaussian sigma) of the low-pass through which the map corrects a new keyframe's
     prior (``map_prior_weight``): the network's fine structure is its view's own, the map's splatted edges are not
     passed on. 4 and 16 were measured worse than 8 (at weight 0.5; docs/results/slam_table.md)."""
+    map_prior_span: bool = False
+    """The map's correction of a new keyframe's prior (``map_prior_weight``) fitted by the keyframe's code and taken
+    as a shift of its zero code along the code's span (``D(I, c)``), instead of added pixel by pixel. For the
+    stand-in depth (``--depth-model standin``), whose true depth lies in its code's span by construction: there the
+    pixel-wise correction moves the prior off the span, away from a truth the code could reach, and the stand-in
+    runs lose what they measure. Measured (docs/results/slam_table.md, twenty-ninth session; 1 thread, start frame
+    0), stand-in: the walk towards a blank wall 0.281 -> 0.0495 m (0.049 without the map's prior), the walk preset
+    0.0844 -> 0.0509, TUM 0.0127 -> 0.0118. With the network's depth it loses the map's gain (walk 42 0.174 ->
+    0.235 m, corridor 44 0.128 -> 0.225, the walk preset 0.047 -> 0.061, as without the map's prior): what the map
+    corrects there is what the network's span cannot express. Off by default."""
     interruptible: bool = True
     """Parallel mapping: a keyframe the tracker needs at once (the last one is leaving the view) stops the running
     window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops

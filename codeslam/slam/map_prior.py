@@ -19,8 +19,11 @@ generator walk 42 went from 0.23 to 0.48 m.
 Measured (``docs/results/slam_table.md``, session of 2026-12-02, twenty-eighth; ``window.map_prior_weight`` and
 ``map_prior_blur``): weight 0.35 with a low-pass of 8 pixels at 128x96 took the suite's 18 network runs to 0.913x
 the ATE in geometric mean over two start frames; without the low-pass (the map's texture passed on) 0.98x, with the
-map's depth alone 2.1x on walk 42. With the dataset's depth the walk towards a blank wall got 5.5x worse: the map's
-depth over a textureless view is the window's guess, and it is passed on.
+map's depth alone 2.1x on walk 42. With the dataset's depth the walk towards a blank wall got 5.5x worse. The cause
+(twenty-ninth session): the stand-in's true depth lies in its code's span by construction, and the pixel-wise
+correction moves its prior off the span; ``in_span`` (``window.map_prior_span``) fits the correction by the code
+instead, which gives the stand-in back its figures and takes the network's gain away (what the map corrects in the
+network's prior is what its span cannot express).
 """
 
 from __future__ import annotations
@@ -33,6 +36,10 @@ import torch
 from codeslam.geometry.image import image_pyramid
 from codeslam.geometry.proximity import depth_to_prox, prox_to_depth
 from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
+
+SPAN_RIDGE = 1e-3
+"""Ridge of the least-squares fit of the map's correction by the code (``in_span``), relative to the mean diagonal
+of ``J J^T``: keeps the fitted code finite where directions of the span barely change the depth."""
 
 MIN_COVERAGE = 0.3
 """The share of the new view that the map's splatted depth must cover (valid pixels of both) for a correction;
@@ -52,18 +59,22 @@ def low_pass(x: torch.Tensor, weight: torch.Tensor, sigma: float) -> tuple[torch
 
 
 def map_prior(decoder: LinearDecoder, map_depth: torch.Tensor, weight: float, sigma: float,
-              valid: torch.Tensor | None = None) -> LinearDecoder:
+              valid: torch.Tensor | None = None, in_span: bool = False) -> LinearDecoder:
     """The keyframe's decoder with its zero-code proximity moved toward the map (module docstring).
 
     decoder: the network's decoder of the new keyframe; map_depth: (H, W) the map's depth in the keyframe's view at
     the finest level, +inf where unknown (:func:`codeslam.geometry.splat.splat_depth`); weight: the share of the
     map's correction taken (0: the decoder unchanged); sigma: the low-pass Gaussian's width in finest-level pixels;
-    valid: (H, W) where the keyframe's image holds real pixels (None: everywhere).
+    valid: (H, W) where the keyframe's image holds real pixels (None: everywhere); in_span: take only the part of
+    the correction that the keyframe's code can make (below).
 
     With ``e`` the map's log depth less the zero code's, less its median over the pixels both know, the new zero
     code's log depth is ``log D(I, 0) + weight * lowpass(e)`` (where the low-pass covers less than a fifth of a
     pixel's neighbourhood, nothing is added); the coarser levels get the finest level's change through the image
-    pyramid. Jacobians and uncertainties are the network's."""
+    pyramid. With ``in_span`` that change (in proximity) is fitted by the code, ``c = argmin |J_0 c - change|^2``
+    with a small ridge, and every level l moves by its own ``J_l c``: the zero code becomes ``D(I, c)``, the code
+    prior is re-centred on the map and any depth the network's span held it still holds. Jacobians and
+    uncertainties are the network's."""
     if weight <= 0:
         return decoder
     log_d0 = prox_to_depth(decoder.levels[0].prox0.to(torch.float64), decoder.avg_depth).log()
@@ -78,6 +89,16 @@ def map_prior(decoder: LinearDecoder, map_depth: torch.Tensor, weight: float, si
     change = weight * torch.where(cover > 0.2, smooth, torch.zeros_like(smooth))
     a = decoder.avg_depth
     delta = depth_to_prox((log_d0 + change).exp(), a) - depth_to_prox(log_d0.exp(), a)  # exactly 0 where unchanged
-    levels = tuple(DecoderLevel((lv.prox0.to(torch.float64) + dp[0, 0]).to(lv.prox0.dtype), lv.jac, lv.uncertainty)
-                   for dp, lv in zip(image_pyramid(delta[None, None], decoder.num_levels), decoder.levels))
+    if in_span:
+        # The change the code can make: c = argmin |J c - delta|^2 + ridge |c|^2, every level moved by its own J c
+        # (the zero code becomes D(I, c): the code prior re-centred on the map, the network's span kept).
+        J0 = decoder.levels[0].jac.to(torch.float64).reshape(decoder.code_size, -1)
+        A = J0 @ J0.T
+        A = A + SPAN_RIDGE * A.diagonal().mean() * torch.eye(len(A), dtype=A.dtype, device=A.device)
+        c = torch.linalg.solve(A, J0 @ delta.reshape(-1))
+        steps = [torch.einsum("c,chw->hw", c.to(lv.jac.dtype), lv.jac).to(torch.float64) for lv in decoder.levels]
+    else:
+        steps = [dp[0, 0] for dp in image_pyramid(delta[None, None], decoder.num_levels)]
+    levels = tuple(DecoderLevel((lv.prox0.to(torch.float64) + dp).to(lv.prox0.dtype), lv.jac, lv.uncertainty)
+                   for dp, lv in zip(steps, decoder.levels))
     return dataclasses.replace(decoder, levels=levels)  # the decoder's own class (a ScaledDecoder stays one)

@@ -237,7 +237,8 @@ class Mapper:
         if cfg.map_prior_weight <= 0 or src is None or src.segment != kf.segment or not src.active:
             return kf
         depth = splat_depth(src.depth_map(0), src.view.camera, se3_inverse(kf.T_wc) @ src.T_wc, src.view.valid)
-        decoder = map_prior(kf.view.decoder, depth, cfg.map_prior_weight, cfg.map_prior_blur, kf.view.valid)
+        decoder = map_prior(kf.view.decoder, depth, cfg.map_prior_weight, cfg.map_prior_blur, kf.view.valid,
+                            cfg.map_prior_span)
         if decoder is kf.view.decoder:
             return kf
         kf = dataclasses.replace(kf, view=dataclasses.replace(kf.view, decoder=decoder))

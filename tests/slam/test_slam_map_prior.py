@@ -99,3 +99,39 @@ def test_slam_gives_the_second_keyframe_the_maps_shape_and_keeps_the_first_and_t
     assert abs(float(change.median())) < 0.02  # no scale passed on
     fine = change[1:-1, 1:-1] - 0.25 * (change[:-2, 1:-1] + change[2:, 1:-1] + change[1:-1, :-2] + change[1:-1, 2:])
     assert float(fine.abs().max()) < 0.05 * float(change.abs().max())  # smooth: the map's texture is not passed on
+
+
+def test_in_span_the_correction_is_a_code_every_level_shares():
+    # Fitted by the code, the prior's change at every level is J_l c for one code c: the zero code becomes
+    # D(I, c), so whatever depth the network's span held before it still holds (the stand-in's truth among them).
+    dec = _decoder()
+    u = torch.arange(64, dtype=torch.float64).expand(48, 64)
+    out = map_prior(dec, (_log_depth(dec) + 0.004 * (u - 20.0)).exp(), 0.35, 2.0, in_span=True)
+    J0 = dec.levels[0].jac.to(torch.float64).reshape(dec.code_size, -1)
+    change0 = (out.levels[0].prox0 - dec.levels[0].prox0).to(torch.float64).reshape(-1)
+    c = torch.linalg.lstsq(J0.T, change0[:, None]).solution[:, 0]
+    assert float(change0.abs().max()) > 1e-4  # it moved
+    assert torch.allclose(J0.T @ c, change0, atol=1e-6 * float(change0.abs().max()))  # inside the span
+    for a, b in zip(out.levels[1:], dec.levels[1:]):
+        expected = torch.einsum("c,chw->hw", c, b.jac.to(torch.float64))
+        assert torch.allclose((a.prox0 - b.prox0).to(torch.float64), expected, atol=1e-9)
+
+
+def test_slam_with_map_prior_span_moves_the_second_keyframe_inside_its_span():
+    # window.map_prior_span reaches the mapper: the second keyframe's zero code moved, and only along its code.
+    from slam_scene import MemorySequence, preset_frames, small_config
+
+    from codeslam.slam.depth import standin_depth_model
+    from codeslam.slam.pipeline import run_slam
+    from codeslam.slam.system import CodeSLAM
+
+    frames = preset_frames(5, 12, "walk", 10.0, width=64, height=48)
+    system = CodeSLAM(small_config(map_prior_span=True), standin_depth_model())
+    run_slam(MemorySequence(frames), system, frames[0].camera)
+    kf = system.keyframes[1]
+    network = standin_depth_model()(frames[kf.frame_index])  # the same frame's decoder before the map's prior
+    J0 = network.levels[0].jac.to(torch.float64).reshape(network.code_size, -1)
+    change = (kf.view.decoder.levels[0].prox0 - network.levels[0].prox0).to(torch.float64).reshape(-1)
+    assert float(change.abs().max()) > 1e-4  # the map moved it
+    c = torch.linalg.lstsq(J0.T, change[:, None]).solution[:, 0]
+    assert torch.allclose(J0.T @ c, change, atol=1e-4 * float(change.abs().max()))
