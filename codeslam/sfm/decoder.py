@@ -229,3 +229,25 @@ def standin_decoder(
     stack = torch.cat([prox0[None], jac])[None]  # (1, 1 + C, H, W)
     levels = tuple(DecoderLevel(s[0, 0], s[0, 1:]) for s in image_pyramid(stack, num_levels))
     return LinearDecoder(levels, float(avg_depth))
+
+
+def fit_code_linear(
+    prox0: torch.Tensor, jac: torch.Tensor, target: torch.Tensor, weight: torch.Tensor, prior_weight: float = 1.0
+) -> torch.Tensor:
+    """The code minimising ``0.5 sum w (t - p0 - J c)^2 + 0.5 prior |c|^2`` (linear least squares with the VAE
+    prior N(0, I)): ``(J^T W J + prior I) c = J^T W (t - p0)``, solved by Cholesky in float64.
+
+    prox0 (B, 1, H, W), jac (B, C, H, W), target (B, 1, H, W), weight (B, 1, H, W) >= 0 (0 masks a pixel)
+    -> code (B, C) in jac's dtype.
+    """
+    if not prior_weight > 0:
+        raise ValueError(f"the code prior weight must be positive (it keeps the system definite), got {prior_weight}")
+    B, C = jac.shape[:2]
+    J = jac.double().flatten(2)  # (B, C, N)
+    w = weight.double().flatten(2)  # (B, 1, N)
+    r = (target.double() - prox0.double()).flatten(2)  # (B, 1, N)
+    A = (J * w) @ J.transpose(1, 2)  # (B, C, C) J^T W J
+    A = A + prior_weight * torch.eye(C, dtype=A.dtype, device=A.device)
+    rhs = ((J * w) @ r.transpose(1, 2))  # (B, C, 1) J^T W r
+    L = torch.linalg.cholesky(A)
+    return torch.cholesky_solve(rhs, L)[..., 0].to(jac.dtype)  # (B, C)

@@ -35,7 +35,7 @@ import torch
 
 from codeslam.geometry.image import image_pyramid
 from codeslam.geometry.proximity import depth_to_prox, prox_to_depth
-from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
+from codeslam.sfm.decoder import DecoderLevel, LinearDecoder, fit_code_linear
 
 SPAN_RIDGE = 1e-3
 """Ridge of the least-squares fit of the map's correction by the code (``in_span``), relative to the mean diagonal
@@ -92,10 +92,10 @@ def map_prior(decoder: LinearDecoder, map_depth: torch.Tensor, weight: float, si
     if in_span:
         # The change the code can make: c = argmin |J c - delta|^2 + ridge |c|^2, every level moved by its own J c
         # (the zero code becomes D(I, c): the code prior re-centred on the map, the network's span kept).
-        J0 = decoder.levels[0].jac.to(torch.float64).reshape(decoder.code_size, -1)
-        A = J0 @ J0.T
-        A = A + SPAN_RIDGE * A.diagonal().mean() * torch.eye(len(A), dtype=A.dtype, device=A.device)
-        c = torch.linalg.solve(A, J0 @ delta.reshape(-1))
+        lv0 = decoder.levels[0]
+        ridge = SPAN_RIDGE * float(lv0.jac.to(torch.float64).square().sum((1, 2)).mean())  # mean diagonal of J J^T
+        zero = torch.zeros_like(delta)[None, None]
+        c = fit_code_linear(zero, lv0.jac[None].to(torch.float64), delta[None, None], torch.ones_like(zero), ridge)[0]
         steps = [torch.einsum("c,chw->hw", c.to(lv.jac.dtype), lv.jac).to(torch.float64) for lv in decoder.levels]
     else:
         steps = [dp[0, 0] for dp in image_pyramid(delta[None, None], decoder.num_levels)]
