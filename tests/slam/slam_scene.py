@@ -90,16 +90,29 @@ def small_config(**window) -> SLAMConfig:
     )
 
 
-@functools.lru_cache(maxsize=4)
+_PRESET_RENDERS: dict[tuple, tuple] = {}
+
+
 def _rendered_preset(seed: int, frames: int, motion: str, fps: float, width: int, height: int):
+    """The first ``frames`` frames of a preset's path, rendered. A preset's path and each frame's rendering do not
+    depend on how many frames are asked for (tests/synth/test_synth_motion.py checks it bit for bit), so the
+    longest render of a path so far serves every shorter request: the SLAM tests ask for 8 to 24 frames of the same
+    few paths, and each frame at 160x120 takes about 0.4 s to render."""
     from codeslam.synth.motion import get_preset, preset_trajectory
 
-    scene = get_preset(motion).scene(seed)
-    rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7247]))
-    poses = preset_trajectory(scene, frames, rng, motion, fps=fps)
-    cam = canonical_camera(width, height)
-    image, depth = render(scene, cam, poses, RenderConfig(ao_samples=0, supersample=2))
-    return cam, image, depth, poses
+    key = (seed, motion, fps, width, height)
+    hit = _PRESET_RENDERS.get(key)
+    if hit is None or hit[3].shape[0] < frames:
+        scene = get_preset(motion).scene(seed)
+        rng = np.random.default_rng(np.random.SeedSequence([seed, 0x7247]))
+        poses = preset_trajectory(scene, frames, rng, motion, fps=fps)
+        cam = canonical_camera(width, height)
+        image, depth = render(scene, cam, poses, RenderConfig(ao_samples=0, supersample=2))
+        hit = _PRESET_RENDERS[key] = (cam, image, depth, poses)
+        while len(_PRESET_RENDERS) > 6:  # the oldest path goes (a test module uses one or two)
+            _PRESET_RENDERS.pop(next(iter(_PRESET_RENDERS)))
+    cam, image, depth, poses = hit
+    return cam, image[:frames], depth[:frames], poses[:frames]
 
 
 def preset_frames(seed: int, frames: int, motion: str, fps: float, width: int = 160, height: int = 120) -> list[Frame]:
