@@ -97,16 +97,16 @@ class TrackerConfig:
     start frames: orientation 1.7-6.4 -> 1.35-1.50 deg, ATE 0.026-0.040 -> 0.016-0.017 m; 0.3, 0.7 and 0.9 worse;
     docs/results/slam_table.md, session of 2026-11-26)."""
     rolling_shutter_estimate: bool = True
-    """Choose the readout online (:mod:`codeslam.slam.readout`; ``rolling_shutter_readout`` is then not used):
-    the first frames that turn against their keyframe are aligned again with their image rectified under each
-    candidate readout, and the one that explains them best is taken (provisionally after 10 such frames, finally
-    after 40; a global shutter when no candidate does clearly better). The datasets carry no readout, and a
-    camera's own video rarely states one. Measured (1 thread, one run each, docs/results/slam_table.md, session of
-    2026-11-26, second): TUM fr1/rpy chooses 0.59 (0.75 from start frames 5-15 and with the sensor's depth), the
-    HoloLens and generator walks a global shutter (their trajectories unchanged to the last digit); TUM from
-    frames 0 / 5 / 10 / 15: 1.71 / 6.37 / 3.35 / 2.82 deg -> 1.42 / 1.53 / 1.15 / 2.94 deg (a hand-set 0.5: 1.38 /
-    1.35 / 1.50 / 1.68). Costs about 10 ms per frame over TUM's first 50 frames (four alignments at the finest
-    level per informative frame), nothing after."""
+    """Choose the readout online (:mod:`codeslam.slam.readout`; ``rolling_shutter_readout`` is then not used): the
+    first frames that turn against their keyframe are aligned again with their image rectified under each candidate
+    readout, and the one that explains them best is taken (provisionally after 10 such frames, finally after 40; a
+    global shutter when no candidate does clearly better, final as soon as the frames settle it). The datasets carry
+    no readout, and a camera's own video rarely states one. Measured (1 thread, one run each,
+    docs/results/slam_table.md, session of 2026-11-26, second): TUM fr1/rpy chooses 0.59 (0.75 from start frames
+    5-15 and with the sensor's depth), the HoloLens and generator walks a global shutter (their trajectories
+    unchanged to the last digit); TUM from frames 0 / 5 / 10 / 15: 1.71 / 6.37 / 3.35 / 2.82 deg -> 1.42 / 1.53 /
+    1.15 / 2.94 deg (a hand-set 0.5: 1.38 / 1.35 / 1.50 / 1.68). Costs about 10 ms per frame over TUM's first 50
+    frames (four alignments at the finest level per informative frame), nothing after."""
 
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)

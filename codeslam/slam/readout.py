@@ -12,7 +12,14 @@ hypothesis (first order: the keyframe, rectified by ``s_k`` times its own turn `
 of each candidate's RMS residual to that of readout 0 picks the readout (the parabola's vertex through the best
 candidate and its neighbours) when the best beats readout 0 by more than ``margin``, else a global shutter:
 provisionally from ``min_frames`` such frames on, so that the frames after it are rectified, and finally after
-``frames``.
+``frames``, or as soon as a global shutter is settled: from ``min_frames`` on, when every candidate's mean log ratio
+stays above ``-margin`` by ``confidence`` standard errors of the mean (the frames' spread). A global shutter is a
+yes or no that such evidence settles; a rolling shutter's readout is a value that every further frame refines, so
+that choice always takes ``frames``. Measured (1 thread, first 70 frames; ``docs/results/slam_table.md``, session of
+2026-12-02, thirtieth): the HoloLens walk and the generator's walk and corridor settle at their 10th informative
+frame (the lowest of the candidates' bounds at 3 standard errors -0.021 to +0.081 there, +0.075 to +0.120 at the
+40th), and the choice was a global shutter from the 10th frame on anyway; TUM fr1/rpy (means -0.10 to -0.26) never
+does.
 This is model selection by the profiled photometric likelihood (the pose re-optimised for each readout), not the
 paper's maths: our own addition, measured in ``docs/results/slam_table.md`` (session of 2026-11-26, second).
 Measured before writing it, in whole runs with and without a readout of 0.5: the mean RMS residual of the
@@ -34,7 +41,8 @@ CANDIDATES = (0.25, 0.5, 0.75)
 @dataclass
 class ReadoutChoice:
     """Accumulates the evidence of informative frames: a provisional readout from ``min_frames`` of them on
-    (updated with every further one), final after ``frames``.
+    (updated with every further one), final after ``frames``, or once a global shutter is settled (``confidence``
+    standard errors, module docstring).
 
     value: None before ``min_frames`` informative frames, then the readout chosen so far (0.0: a global shutter);
     decided_at: the index of the frame that made it final."""
@@ -43,14 +51,30 @@ class ReadoutChoice:
     min_frames: int = 10
     min_turn_deg: float = 0.5
     margin: float = 0.03
+    confidence: float = 3.0
     log_ratio: list[float] = field(default_factory=lambda: [0.0] * len(CANDIDATES))
+    log_ratio_sq: list[float] = field(default_factory=lambda: [0.0] * len(CANDIDATES))
     seen: int = 0
     value: float | None = None
     decided_at: int | None = None
+    settled: bool = False
 
     @property
     def final(self) -> bool:
-        return self.seen >= self.frames
+        return self.settled or self.seen >= self.frames
+
+    def global_shutter_settled(self) -> bool:
+        """Whether every candidate's mean log ratio lies above ``-margin`` by ``confidence`` standard errors of the
+        mean (sample spread of the frames' ratios), from ``min_frames`` informative frames on."""
+        n = self.seen
+        if n < max(self.min_frames, 2):
+            return False
+        for s, ss in zip(self.log_ratio, self.log_ratio_sq):
+            mean = s / n
+            var = max(ss - n * mean * mean, 0.0) / (n - 1)
+            if mean - self.confidence * math.sqrt(var / n) < -self.margin:
+                return False
+        return True
 
     def informative(self, turn: torch.Tensor) -> bool:
         """Whether a frame whose rotation vector relative to its keyframe is ``turn`` (3,) (radians per frame: the
@@ -63,10 +87,13 @@ class ReadoutChoice:
         if self.final or not (base > 0 and all(r > 0 and math.isfinite(r) for r in residuals)):
             return  # an alignment without overlap says nothing
         for i, r in enumerate(residuals):
-            self.log_ratio[i] += math.log(r / base)
+            x = math.log(r / base)
+            self.log_ratio[i] += x
+            self.log_ratio_sq[i] += x * x
         self.seen += 1
         if self.seen >= min(self.min_frames, self.frames):
             self.value = choose([v / self.seen for v in self.log_ratio], self.margin)
+        self.settled = self.global_shutter_settled()  # implies value 0.0: every mean lies above -margin
         if self.final:
             self.decided_at = index
 

@@ -63,6 +63,33 @@ def test_a_provisional_choice_is_updated_until_the_choice_is_final():
     assert choice.value == 0.0 and choice.seen == 4
 
 
+
+def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
+    # Every candidate fits clearly worse, frame after frame (the HoloLens walk's evidence, per-frame log ratios
+    # 0.06-0.7): final at min_frames, not after all the frames, and nothing is weighed after it.
+    rng = torch.Generator().manual_seed(0)
+    worse = [[math.exp(0.1 * (i + 1) + 0.05 * float(torch.randn(1, generator=rng))) for i in range(3)]
+             for _ in range(12)]
+    choice = ReadoutChoice(frames=40, min_frames=10, margin=0.03)
+    for k, r in enumerate(worse[:9]):
+        choice.add(1.0, r, k)
+    assert choice.seen == 9 and not choice.final and choice.value is None
+    choice.add(1.0, worse[9], 9)
+    assert choice.final and choice.value == 0.0 and choice.decided_at == 9 and choice.seen == 10
+    assert not choice.informative(torch.tensor([0.0, 0.1, 0.0], dtype=torch.float64))
+    # Evidence as worse on average but spread so wide that the mean is not sure to stay above -margin: it waits.
+    spread = ReadoutChoice(frames=40, min_frames=10, margin=0.03)
+    for k in range(20):
+        spread.add(1.0, [math.exp(0.1 + (0.6 if k % 2 else -0.6))] * 3, k)
+    assert not spread.final and spread.value == 0.0
+    # A rolling shutter's readout is a value every frame refines: it always takes all the frames.
+    rolling = ReadoutChoice(frames=40, min_frames=10, margin=0.03)
+    for k in range(39):
+        rolling.add(1.0, [0.9, 0.8, 0.85], k)
+    assert not rolling.final and 0.4 < rolling.value < 0.6
+    rolling.add(1.0, [0.9, 0.8, 0.85], 39)
+    assert rolling.final and rolling.decided_at == 39
+
 @pytest.mark.parametrize("readout", [0.5, 0.0])
 def test_the_readout_is_found_from_a_turning_cameras_frames(readout):
     """Frames ray-cast row by row while the camera turns (a rolling shutter reading out over half the frame
