@@ -63,7 +63,6 @@ def test_a_provisional_choice_is_updated_until_the_choice_is_final():
     assert choice.value == 0.0 and choice.seen == 4
 
 
-
 def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
     # Every candidate fits clearly worse, frame after frame (the HoloLens walk's evidence, per-frame log ratios
     # 0.06-0.7): final at min_frames, not after all the frames, and nothing is weighed after it.
@@ -89,6 +88,7 @@ def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
     assert not rolling.final and 0.4 < rolling.value < 0.6
     rolling.add(1.0, [0.9, 0.8, 0.85], 39)
     assert rolling.final and rolling.decided_at == 39
+
 
 @pytest.mark.parametrize("readout", [0.5, 0.0])
 def test_the_readout_is_found_from_a_turning_cameras_frames(readout):

@@ -100,7 +100,6 @@ def test_deterministic_per_seed_and_same_path_at_any_frame_rate():
     assert torch.allclose(d[::3], a, atol=1e-9)
 
 
-
 @pytest.mark.parametrize("name", list(PRESETS))
 def test_a_shorter_path_and_its_render_are_the_start_of_a_longer_one(name):
     # A path does not depend on how many frames are asked for, nor a frame's rendering on the others rendered with
@@ -115,6 +114,7 @@ def test_a_shorter_path_and_its_render_are_the_start_of_a_longer_one(name):
     cam, cfg = canonical_camera(32, 24), RenderConfig(ao_samples=0, supersample=2)
     (im_l, d_l), (im_s, d_s) = render(scene, cam, long[:6], cfg), render(scene, cam, short, cfg)
     assert torch.equal(im_l[:4], im_s) and torch.equal(d_l[:4], d_s)
+
 
 def test_bad_presets_and_rates_are_refused(tmp_path):
     scene = build_scene(1)
