@@ -57,11 +57,10 @@ class ReadoutChoice:
     seen: int = 0
     value: float | None = None
     decided_at: int | None = None
-    settled: bool = False
 
     @property
     def final(self) -> bool:
-        return self.settled or self.seen >= self.frames
+        return self.seen >= self.frames or self.global_shutter_settled()
 
     def global_shutter_settled(self) -> bool:
         """Whether every candidate's mean log ratio lies above ``-margin`` by ``confidence`` standard errors of the
@@ -93,8 +92,7 @@ class ReadoutChoice:
         self.seen += 1
         if self.seen >= min(self.min_frames, self.frames):
             self.value = choose([v / self.seen for v in self.log_ratio], self.margin)
-        self.settled = self.global_shutter_settled()  # implies value 0.0: every mean lies above -margin
-        if self.final:
+        if self.final:  # settled as a global shutter implies value 0.0: every mean lies above -margin
             self.decided_at = index
 
     def summary(self) -> dict:
