@@ -72,18 +72,19 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
     torch.set_num_threads(args["threads"])
     seq = _sequence(spec)
     n = min(len(seq), spec.get("limit") or len(seq))
+    config = load_config(None if args["config"] == "default" else args["config"])
     if args["depth_model"] == "network":
         from codeslam.depthmodel import DepthModel
+        from codeslam.network.jacobian import jacobian_dtype
         from codeslam.slam.depth import network_depth_model
 
         model = DepthModel.load(args["weights"])
-        factory, camera = network_depth_model(model), model.camera
+        factory, camera = network_depth_model(model, jacobian_dtype(config.jacobian_dtype, config.device)), model.camera
     else:
         from codeslam.geometry.camera import canonical_camera
         from codeslam.slam.depth import standin_depth_model
 
         factory, camera = standin_depth_model(), canonical_camera()
-    config = load_config(None if args["config"] == "default" else args["config"])
     clock = _bench_clock(config.device)
     system = CodeSLAM(config, factory, parallel=(mode == "parallel"), clock=clock)
     tracker = _thread_clock(system)

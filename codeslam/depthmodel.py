@@ -142,15 +142,17 @@ class DepthModel:
             mean, _ = self.network.encode(feats, prox.to(self.device, torch.float32))
         return mean
 
-    def linear_decoders(self, feats: list[torch.Tensor], codes: torch.Tensor | None = None) -> list[LinearDecoder]:
+    def linear_decoders(self, feats: list[torch.Tensor], codes: torch.Tensor | None = None,
+                        jacobian_dtype: torch.dtype | None = None) -> list[LinearDecoder]:
         """One :class:`LinearDecoder` per image: all pyramid levels of ``prox0`` and ``J = dD/dc`` from one batched
-        forward pass (:func:`codeslam.network.code_jacobian`) and the uncertainty b. For the linear decoder
-        this is exact; a nonlinear decoder is linearised at ``codes`` (B, C) (default zero):
-        ``D(c') ~ (D(c) - J c) + J c'``."""
+        forward pass (:func:`codeslam.network.code_jacobian`, J computed in ``jacobian_dtype``, default the
+        network's) and the uncertainty b. For the linear decoder this is exact; a nonlinear decoder is
+        linearised at ``codes`` (B, C) (default zero): ``D(c') ~ (D(c) - J c) + J c'``."""
         B = feats[0].shape[0]
         if codes is None:
             codes = feats[0].new_zeros(B, self.code_size)
-        prox, jac = code_jacobian(self.network, feats=feats, code=codes.to(feats[0]), all_levels=True)
+        prox, jac = code_jacobian(self.network, feats=feats, code=codes.to(feats[0]), all_levels=True,
+                                  dtype=jacobian_dtype)
         b = self.uncertainty(feats)
         out = []
         for i in range(B):

@@ -123,16 +123,18 @@ def setup_slam(config: Path | None, weights: Path | None, device: str | None, de
     mode = "sequential" if sequential else "parallel"
     if depth_model in ("network", "true-prior"):
         from codeslam.depthmodel import DepthModel
+        from codeslam.network.jacobian import jacobian_dtype
         from codeslam.slam.depth import network_depth_model, true_prior_depth_model
 
         model = DepthModel.load(weights, device=cfg.device)
-        factory, name = network_depth_model(model), "network"
+        jac_dtype = jacobian_dtype(cfg.jacobian_dtype, cfg.device)
+        factory, name = network_depth_model(model, jac_dtype), "network"
         if depth_model == "true-prior":
             factory = true_prior_depth_model(factory)
             name = "true-prior (the network's code Jacobian, the zero code at the dataset's depth: an oracle)"
         return SlamSetup(cfg, factory, model.camera, depth_model,
                          {"depth_model": name, "weights": str(weights) if weights else "default",
-                          "mapping": mode}, not sequential)
+                          "code_jacobian": str(jac_dtype).removeprefix("torch."), "mapping": mode}, not sequential)
     from codeslam.slam.depth import standin_depth_model
 
     return SlamSetup(cfg, standin_depth_model(num_levels=cfg.decoder_levels), canonical_camera(*parse_size(size)),

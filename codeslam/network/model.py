@@ -188,27 +188,34 @@ class DepthDecoder(nn.Module):
         mu[0] = self.heads[0](join(y, feats[0], self.linear))  # (B, 1, H, W)
         return mu
 
-    def code_directions(self, feats: list[torch.Tensor], basis: torch.Tensor) -> list[torch.Tensor]:
+    def code_directions(self, feats: list[torch.Tensor], basis: torch.Tensor,
+                        dtype: torch.dtype | None = None) -> list[torch.Tensor]:
         """Linear decoder only: ``D(I, c + d) - D(I, c)`` for the m code directions ``basis`` (m, C), per level
         (B, m, H / 2^l, W / 2^l), finest first; with the unit codes as ``basis`` the columns of the code
         Jacobian (Sec. 4.1). Every layer is ``W_y y + W_f f + W_yf (y * f) + b`` (:func:`join`), affine in the
         decoder feature y, so a difference of two decodings obeys ``W_y dy + W_yf (dy * f)``: only those
         weights, no bias, no image term, and no pass over the zero code. Written by hand because the batched
         decoding of the zero and unit codes repeats the image terms C + 1 times (measured at 96x128, code 128:
-        0.44 -> 0.21 s with 2 threads, 0.63 -> 0.33 s with 1)."""
+        0.44 -> 0.21 s with 2 threads, 0.63 -> 0.33 s with 1).
+
+        dtype: compute in this type (weights and features cast to it; the result comes back in the features'
+        type), e.g. ``torch.bfloat16`` where the CPU multiplies it in hardware (:func:`jacobian_dtype`); None:
+        the weights' type."""
         if not self.linear:
             raise ValueError("code_directions needs the linear decoder (the nonlinear one's Jacobian varies)")
         B, m = feats[0].shape[0], basis.shape[0]
+        out_dtype = feats[0].dtype
+        dtype = dtype or self.fc.weight.dtype
         # Channels-last: the batch of m directions with few channels each is what oneDNN's convolutions run
         # fastest in that layout (measured at 96x128, code 128: 241 -> 120 ms with 2 threads).
         # The image features go channels-last once, so that for one image (a SLAM keyframe) the product dy * f of
         # channels-last operands is one already and needs no copy (measured at 96x128, code 128, 2 threads: 143 ->
         # 125-136 ms, the same values bit for bit).
         cl = torch.channels_last
-        feats = [f.contiguous(memory_format=cl) for f in feats]
+        feats = [f.to(dtype).contiguous(memory_format=cl) for f in feats]
 
         def layer(conv: nn.Conv2d, dy: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
-            K, w = dy.shape[1], conv.weight  # w: (out, 3K, 3, 3) over [y, f, y * f]
+            K, w = dy.shape[1], conv.weight.to(dtype)  # w: (out, 3K, 3, 3) over [y, f, y * f]
             dy = dy.contiguous(memory_format=cl)
             if B == 1:
                 dyf = dy * f  # (m, K, h, w), broadcast over the m directions
@@ -217,7 +224,8 @@ class DepthDecoder(nn.Module):
             return (F.conv2d(dy, w[:, :K].contiguous(memory_format=cl), None, conv.stride, conv.padding)
                     + F.conv2d(dyf, w[:, 2 * K :].contiguous(memory_format=cl), None, conv.stride, conv.padding))
 
-        dy = (basis.to(self.fc.weight) @ self.fc.weight.T).view(1, m, -1, self.h16, self.w16)
+        fc = self.fc.weight.to(dtype)
+        dy = (basis.to(fc) @ fc.T).view(1, m, -1, self.h16, self.w16)
         dy = dy.expand(B, -1, -1, -1, -1).flatten(0, 1)  # (B m, w_3, H/16, W/16), image-major like the result
         out: list[torch.Tensor] = [None] * NUM_LEVELS  # type: ignore[list-item]
         for i, s in enumerate(range(NUM_SCALES, 0, -1)):  # the same walk as forward()
@@ -226,11 +234,11 @@ class DepthDecoder(nn.Module):
             dy = layer(self.convs[i], dy, feats[s])
             if s < NUM_LEVELS:
                 head = self.heads[s]
-                out[s] = F.conv2d(dy, head.weight, None, head.stride, head.padding)
-        dy = F.conv_transpose2d(dy.contiguous(memory_format=cl), self.deconv.weight, None, self.deconv.stride,
-                                self.deconv.padding)
+                out[s] = F.conv2d(dy, head.weight.to(dtype), None, head.stride, head.padding)
+        dy = F.conv_transpose2d(dy.contiguous(memory_format=cl), self.deconv.weight.to(dtype), None,
+                                self.deconv.stride, self.deconv.padding)
         out[0] = layer(self.heads[0], dy, feats[0])
-        return [o.reshape(B, m, *o.shape[-2:]) for o in out]
+        return [o.reshape(B, m, *o.shape[-2:]).to(out_dtype) for o in out]
 
 
 class CodeNetwork(nn.Module):

@@ -91,7 +91,8 @@ def run_info_rows(run: RunFiles) -> list[tuple[str, str]]:
     if "camera" in s:  # e.g. the video reader's "60 deg horizontal field of view (a guess; no calibration)"
         rows.append(("camera", str(s["camera"])))
     if "depth_model" in s:
-        rows.append(("depth model", f"{s['depth_model']}" + (f", weights {s['weights']}" if "weights" in s else "")))
+        rows.append(("depth model", f"{s['depth_model']}" + (f", weights {s['weights']}" if "weights" in s else "")
+                     + (f", code Jacobian in {s['code_jacobian']}" if "code_jacobian" in s else "")))
     if "device" in s:
         rows.append(("device", str(s["device"])))
     if "settings" in s:

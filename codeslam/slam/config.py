@@ -24,6 +24,7 @@ from codeslam.sfm.config import SfMConfig
 
 MOTION_MODELS = ("constant_velocity", "static")
 DTYPES = ("float32", "float64")
+JACOBIAN_DTYPES = ("float32", "bfloat16", "auto")
 TRAJECTORIES = ("interpolated", "reference")
 
 
@@ -481,6 +482,14 @@ class SLAMConfig:
     dtype: str = "float32"
     """Floating-point type of images, decoders and solver (float64 for checks; the normal equations are solved
     in float64 either way)."""
+    jacobian_dtype: str = "auto"
+    """The type each keyframe's code Jacobian (the network's, Sec. 4.1) is computed in: float32, bfloat16, or
+    auto (bfloat16 on a CPU with AMX, float32 elsewhere: :func:`codeslam.network.jacobian.jacobian_dtype`). The
+    zero-code depth and everything after the Jacobian keep ``dtype``. Measured on a 2-core CPU with AMX (docs/
+    results/slam_table.md, thirty-first session; float32 -> bfloat16): a keyframe's decoding 158-212 -> 73-77 ms
+    on 2 threads; ATE Sim(3) at 1 thread HoloLens walk 0.1383 -> 0.1381 m, TUM fr1/rpy 0.0127 -> 0.0131 m,
+    generator walk 0.0479 -> 0.0487 m, corridor 0.1762 -> 0.1761 m (eight runs: geometric mean 1.009x, inside
+    the spread of two draws), every frame tracked in all."""
     trajectory: str = "interpolated"
     """How the final trajectory places a frame that is not a keyframe. 'reference': its reference keyframe's final
     pose times the pose tracked against it (``T_wk T_kf``, as ORB-SLAM and DSO write theirs), so the frames jump
@@ -511,6 +520,8 @@ class SLAMConfig:
             raise ConfigError(f"trajectory must be one of {TRAJECTORIES}, got {self.trajectory!r}")
         if self.dtype not in DTYPES:
             raise ConfigError(f"dtype must be one of {DTYPES}, got {self.dtype!r}")
+        if self.jacobian_dtype not in JACOBIAN_DTYPES:
+            raise ConfigError(f"jacobian_dtype must be one of {JACOBIAN_DTYPES}, got {self.jacobian_dtype!r}")
         if not isinstance(self.device, str) or not self.device:
             raise ConfigError(f"device must be a non-empty string such as 'cpu' or 'cuda', got {self.device!r}")
 

@@ -24,11 +24,13 @@ from codeslam.sfm.decoder import DecoderLevel, LinearDecoder, standin_decoder
 from codeslam.slam.system import DepthModelFactory
 
 
-def network_depth_model(model) -> DepthModelFactory:
+def network_depth_model(model, jacobian_dtype: torch.dtype | None = None) -> DepthModelFactory:
     """The network's depth model: decoded proximity at the zero code, code Jacobian (one batched forward pass
     for the linear decoder) and Laplace uncertainty b on all of the network's levels.
 
     model: a :class:`codeslam.depthmodel.DepthModel`; frames must be in its canonical camera (``model.camera``).
+    jacobian_dtype: the type the code Jacobian is computed in (``SLAMConfig.jacobian_dtype``); None: the
+    network's.
     """
     camera = model.camera
 
@@ -36,7 +38,7 @@ def network_depth_model(model) -> DepthModelFactory:
         if frame.camera != camera:
             raise CodeSLAMError(f"frame {frame.index} is not in the network's {camera.width}x{camera.height} "
                                 "canonical camera; resample it first")
-        return model.linear_decoders(model.features(frame.image[None]))[0]
+        return model.linear_decoders(model.features(frame.image[None]), jacobian_dtype=jacobian_dtype)[0]
 
     return decode
 

@@ -7,7 +7,7 @@ import torch
 
 from codeslam.errors import CodeSLAMError, ConfigError
 from codeslam.network.config import NUM_LEVELS, NetworkConfig, RunConfig, load_run_config
-from codeslam.network.jacobian import code_jacobian
+from codeslam.network.jacobian import code_jacobian, jacobian_dtype
 from codeslam.network.model import CodeNetwork, count_parameters, to_network_image
 
 
@@ -101,6 +101,36 @@ def test_linear_jacobian_float32_at_default_size():
         mu = model.decode(model.image_features(image), code)[0]
     pred = prox0 + torch.einsum("bchw,bc->bhw", jac, code)[:, None]
     assert (mu - pred).abs().max() < 1e-4
+
+
+def test_a_jacobian_computed_in_bfloat16_is_the_float32_one_to_its_precision(tiny_config):
+    """The code Jacobian in bfloat16 (SLAMConfig.jacobian_dtype): returned in the features' float32, within
+    bfloat16's rounding of the float32 one (8 bits of mantissa: about 0.4% a product, a few of them in a row);
+    the decoded proximity is the float32 one, bit for bit."""
+    model = _model(tiny_config(), seed=4, dtype=torch.float32)
+    feats = model.image_features(torch.rand(2, 1, 32, 32))
+    prox, jac = code_jacobian(model, feats=feats, all_levels=True)
+    prox_b, jac_b = code_jacobian(model, feats=feats, all_levels=True, dtype=torch.bfloat16)
+    for lvl in range(NUM_LEVELS):
+        assert jac_b[lvl].dtype == torch.float32
+        assert torch.equal(prox_b[lvl], prox[lvl])
+        scale = jac[lvl].abs().max()
+        err = (jac_b[lvl] - jac[lvl]).abs().max() / scale
+        assert 0 < err < 0.03, (lvl, float(err))  # rounded, but to bfloat16's precision
+
+
+def test_auto_jacobian_type_is_bfloat16_only_on_a_cpu_with_amx(monkeypatch):
+    caps = {"amx_bf16": True}
+    monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: caps, raising=False)
+    assert jacobian_dtype("auto", "cpu") == torch.bfloat16
+    assert jacobian_dtype("auto", "cuda") == torch.float32  # a GPU keeps float32
+    caps["amx_bf16"] = False  # avx512_bf16 alone converts in software: float32
+    assert jacobian_dtype("auto", "cpu") == torch.float32
+    monkeypatch.delattr(torch.cpu, "get_capabilities")  # a torch that cannot tell: float32
+    assert jacobian_dtype("auto", "cpu") == torch.float32
+    assert jacobian_dtype("bfloat16") == torch.bfloat16 and jacobian_dtype("float32") == torch.float32
+    with pytest.raises(ValueError, match="floating-point"):
+        jacobian_dtype("int8")
 
 
 def test_nonlinear_jacobian_matches_autograd_at_nonzero_code(tiny_config):

@@ -51,6 +51,7 @@ def test_resolved_config_round_trips_through_yaml(tmp_path):
         "window:\n  sfm:\n    sigma_photometric: -1\n",
         "window: [1, 2]\n",
         "dtype: float16\n",
+        "jacobian_dtype: int8\n",
         "- just\n- a list\n",
         "tracker: {min_overlap: 2}\n",
         "tracker: {rolling_shutter_readout: 1.5}\n",  # more than the frame interval
