@@ -100,8 +100,8 @@ def jacobian_dtype(setting: str, device: torch.device | str = "cpu") -> torch.dt
     'bfloat16') or is 'auto'.
 
     'auto' is bfloat16 on a CPU with AMX (``amx_bf16``: Intel Xeon since Sapphire Rapids), whose tile unit runs
-    oneDNN's bfloat16 convolutions, and float32 everywhere else: on CPUs without it bfloat16 is converted in
-    software (measured on an AMD EPYC with ``avx512_bf16`` but no AMX: 301 -> 266 ms, a twelfth; with AMX,
+    oneDNN's bfloat16 convolutions, and float32 everywhere else: without the tile unit bfloat16 gains little
+    (measured under autocast on an AMD EPYC with ``avx512_bf16`` but no AMX: 301 -> 266 ms, 12% less; with AMX,
     128x96, code 128: 250 -> 82 ms on one thread, 142 -> 54 ms on two). J then holds about three significant
     digits (largest error 0.8% of the largest entry, the shipped weights); the decoded depth stays float32.
     """
