@@ -79,7 +79,8 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
         from codeslam.slam.depth import network_depth_model
 
         model = DepthModel.load(args["weights"])
-        factory, camera = network_depth_model(model, jacobian_dtype(config.jacobian_dtype, config.device)), model.camera
+        factory, camera = network_depth_model(
+            model, jacobian_dtype(config.jacobian_dtype, config.device, config.torch_dtype)), model.camera
     else:
         from codeslam.geometry.camera import canonical_camera
         from codeslam.slam.depth import standin_depth_model

@@ -127,7 +127,7 @@ def setup_slam(config: Path | None, weights: Path | None, device: str | None, de
         from codeslam.slam.depth import network_depth_model, true_prior_depth_model
 
         model = DepthModel.load(weights, device=cfg.device)
-        jac_dtype = jacobian_dtype(cfg.jacobian_dtype, cfg.device)
+        jac_dtype = jacobian_dtype(cfg.jacobian_dtype, cfg.device, cfg.torch_dtype)
         factory, name = network_depth_model(model, jac_dtype), "network"
         if depth_model == "true-prior":
             factory = true_prior_depth_model(factory)

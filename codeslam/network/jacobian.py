@@ -94,12 +94,13 @@ def code_jacobian(
     return prox[0], jac[0]
 
 
-
-def jacobian_dtype(setting: str, device: torch.device | str = "cpu") -> torch.dtype:
+def jacobian_dtype(setting: str, device: torch.device | str = "cpu",
+                   system_dtype: torch.dtype = torch.float32) -> torch.dtype:
     """The type a keyframe's code Jacobian is computed in: ``setting`` names a torch type ('float32',
-    'bfloat16') or is 'auto'.
+    'bfloat16') or is 'auto'; ``device`` and ``system_dtype`` are where and in what the SLAM system solves.
 
-    'auto' is bfloat16 on a CPU with AMX (``amx_bf16``: Intel Xeon since Sapphire Rapids), whose tile unit runs
+    'auto' is float32 when the system runs in float64 (a check of the maths, not of speed), else bfloat16 on a
+    CPU with AMX (``amx_bf16``: Intel Xeon since Sapphire Rapids), whose tile unit runs
     oneDNN's bfloat16 convolutions, and float32 everywhere else: without the tile unit bfloat16 gains little
     (measured under autocast on an AMD EPYC with ``avx512_bf16`` but no AMX: 301 -> 266 ms, 12% less; with AMX,
     128x96, code 128: 250 -> 82 ms on one thread, 142 -> 54 ms on two). J then holds about three significant
@@ -109,7 +110,7 @@ def jacobian_dtype(setting: str, device: torch.device | str = "cpu") -> torch.dt
         capabilities = getattr(torch.cpu, "get_capabilities", None)  # absent in older torch: float32
         amx = torch.device(device).type == "cpu" and capabilities is not None and bool(
             capabilities().get("amx_bf16", False))
-        return torch.bfloat16 if amx else torch.float32
+        return torch.bfloat16 if amx and system_dtype == torch.float32 else torch.float32
     dtype = getattr(torch, setting, None)
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         raise ValueError(f"the code Jacobian's type must be 'auto' or a floating-point type, got {setting!r}")

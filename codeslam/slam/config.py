@@ -484,7 +484,8 @@ class SLAMConfig:
     in float64 either way)."""
     jacobian_dtype: str = "auto"
     """The type each keyframe's code Jacobian (the network's, Sec. 4.1) is computed in: float32, bfloat16, or
-    auto (bfloat16 on a CPU with AMX, float32 elsewhere: :func:`codeslam.network.jacobian.jacobian_dtype`). The
+    auto (bfloat16 on a CPU with AMX, float32 elsewhere and with ``dtype: float64``:
+    :func:`codeslam.network.jacobian.jacobian_dtype`). The
     zero-code depth and everything after the Jacobian keep ``dtype``. Measured on a 2-core CPU with AMX (docs/
     results/slam_table.md, thirty-first session; float32 -> bfloat16): a keyframe's decoding 158-212 -> 73-77 ms
     on 2 threads; ATE Sim(3) at 1 thread HoloLens walk 0.1383 -> 0.1381 m, TUM fr1/rpy 0.0127 -> 0.0131 m,
