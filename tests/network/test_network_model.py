@@ -125,7 +125,7 @@ def test_auto_jacobian_type_is_bfloat16_only_on_a_cpu_with_amx(monkeypatch):
     assert jacobian_dtype("auto", "cpu") == torch.bfloat16
     assert jacobian_dtype("auto", "cuda") == torch.float32  # a GPU keeps float32
     assert jacobian_dtype("auto", "cpu", torch.float64) == torch.float32  # a float64 system checks the maths
-    caps["amx_bf16"] = False  # avx512_bf16 alone converts in software: float32
+    caps["amx_bf16"] = False  # without the tile unit (avx512_bf16 alone gains little): float32
     assert jacobian_dtype("auto", "cpu") == torch.float32
     monkeypatch.delattr(torch.cpu, "get_capabilities")  # a torch that cannot tell: float32
     assert jacobian_dtype("auto", "cpu") == torch.float32
