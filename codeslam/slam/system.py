@@ -175,10 +175,12 @@ class CodeSLAM:
     code Jacobian; default all of ``torch.get_num_threads()``): the tracker mostly waits for that keyframe, so its
     share of the cores would stand idle (HoloLens walk, parallel, 2 threads: a third of the run spent waiting for
     decoding with 1 thread; see :class:`~codeslam.slam.mapping.Mapper`).
-    alignment_threads: torch threads of the photometric alignment of each frame (at most the caller's; None: the
-    caller's). Its problem, a few thousand pixels and 8 unknowns, gains little from OpenMP's threads, which spin
-    between its small kernels against OpenCV's and the mapping's work (TUM fr1/rpy, sequential, 2 threads: track
-    stage median 68 -> 30 ms with 1, 3.09 -> 3.36 frames/s).
+    alignment_threads: torch threads of each frame's own work, its resampling to the network's and the feature
+    camera and its photometric alignment (at most the caller's; None: the caller's). Its problem, a few thousand
+    pixels and 8 unknowns, gains little from OpenMP's threads, which spin between its small kernels against
+    OpenCV's and the mapping's work (TUM fr1/rpy, sequential, 2 threads: track stage median 68 -> 30 ms with 1,
+    3.09 -> 3.36 frames/s); the resampling on two threads contends with the thread that reads the next frame
+    (the same, mean resample stage 18.7-22.8 -> 11.6-11.9 ms with 1, the whole process 0.88x the wall time).
     clock: the runner's stopwatch (:mod:`codeslam.clock`): it times each frame's stages (resample, features,
     track, relocalise, readout, decode) on the tracking thread, and a fork of it the mapping steps' (decode,
     marginalise, window), which :attr:`FrameResult.timings_ms` reports; the default times nothing.
@@ -269,7 +271,8 @@ class CodeSLAM:
     def _process(self, frame: Frame) -> FrameResult:
         self._check(frame)
         self._apply(self.mapper.collect())  # keyframes the mapping thread finished: track against the newest
-        views = self._views(frame)
+        with self._aligning_threads():  # the frame's resampling and keypoints, as its alignment (alignment_threads)
+            views = self._views(frame)
         if not self.keyframes:  # the first frame is the map's origin
             return self._start_map(views)
         ref = self.ref

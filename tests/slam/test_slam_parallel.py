@@ -123,16 +123,17 @@ def test_the_mapping_thread_and_the_tracker_split_torch_threads(monkeypatch):
         CodeSLAM(SLAMConfig(), factory, parallel=True, decode_threads=0)
 
 
-def test_the_alignment_runs_on_its_own_thread_count_and_the_mapping_on_the_callers():
-    """Sequential mode: each frame's photometric alignment with ``alignment_threads`` (1 by default), the
-    keyframes' decoding (mapping) with the caller's count; None leaves the alignment at the caller's."""
+def test_each_frames_own_work_runs_on_the_alignment_thread_count_and_the_mapping_on_the_callers():
+    """Sequential mode: each frame's resampling, keypoints and photometric alignment with ``alignment_threads``
+    (1 by default), the keyframes' decoding (mapping) with the caller's count; None leaves the frame's work at
+    the caller's."""
     factory = standin_depth_model()
     seq = MemorySequence(preset_frames(21, 8, "walk", 10.0))
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
         for alignment_threads, expected in ((1, {1}), (None, {2})):
-            decoded, aligned = set(), set()
+            decoded, aligned, prepared = set(), set(), set()
 
             def recording(frame, decoded=decoded):
                 decoded.add(torch.get_num_threads())
@@ -145,9 +146,17 @@ def test_the_alignment_runs_on_its_own_thread_count_and_the_mapping_on_the_calle
                 aligned.add(torch.get_num_threads())
                 return track(*args, **kwargs)
 
+            views = system._views
+
+            def preparing(frame, views=views, prepared=prepared):
+                prepared.add(torch.get_num_threads())
+                return views(frame)
+
             system.tracker.track = counting
+            system._views = preparing
             run_slam(seq, system, seq.frames[0].camera)
-            assert aligned == expected and decoded == {2}, (alignment_threads, aligned, decoded)
+            assert aligned == expected and prepared == expected and decoded == {2}, \
+                (alignment_threads, aligned, prepared, decoded)
             assert torch.get_num_threads() == 2
     finally:
         torch.set_num_threads(before)
