@@ -177,7 +177,7 @@ class EurocSequence(Sequence):
     def has_depth(self) -> bool:
         return False
 
-    def __getitem__(self, i: int) -> Frame:
+    def frame(self, i: int, depth: bool = True) -> Frame:  # no depth to read
         i = frame_index(i, len(self))
         image = read_rgb(self._files[i])
         check_frame_shapes(self.source_camera, image, None, self._files[i])

@@ -40,12 +40,14 @@ import yaml
 from codeslam.data.base import Sequence
 from codeslam.data.frame import Frame
 from codeslam.data.imageio import (
+    check_depth_shape,
     check_frame_shapes,
     frame_index,
     image_size,
     read_depth_npy,
     read_depth_png,
     read_rgb,
+    undistort_depth_map,
     undistort_frame,
 )
 from codeslam.data.trajectory import read_tum
@@ -199,21 +201,29 @@ class FolderSequence(Sequence):
     def has_depth(self) -> bool:
         return self._depths is not None
 
-    def __getitem__(self, i: int) -> Frame:
+    def frame(self, i: int, depth: bool = True) -> Frame:
         i = frame_index(i, len(self))
         image = read_rgb(self._images[i])
-        depth, depth_path = None, None
-        if self._depths is not None:
+        depth_map, depth_path = None, None
+        if depth and self._depths is not None:
             depth_path = self._depths[i]
-            if depth_path.suffix == ".npy":
-                depth = read_depth_npy(depth_path)
-            else:
-                depth = read_depth_png(depth_path, self.depth_factor)
-        check_frame_shapes(self.source_camera, image, depth, self._images[i], depth_path)
+            depth_map = self._read_depth(depth_path)
+        check_frame_shapes(self.source_camera, image, depth_map, self._images[i], depth_path)
         valid = None
         if self.undistort:
-            image, depth, valid = undistort_frame(self.source_camera, image, depth)
+            image, depth_map, valid = undistort_frame(self.source_camera, image, depth_map)
         pose = None
         if self._gt is not None and not bool(torch.isnan(self._gt[i]).any()):
             pose = self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, depth, pose, i, valid)
+        return Frame(float(self._stamps[i]), image, self._camera, depth_map, pose, i, valid)
+
+    def depth(self, i: int) -> torch.Tensor | None:
+        i = frame_index(i, len(self))
+        if self._depths is None:
+            return None
+        depth = self._read_depth(self._depths[i])
+        check_depth_shape(self.source_camera, depth, self._depths[i])
+        return undistort_depth_map(self.source_camera, depth) if self.undistort else depth
+
+    def _read_depth(self, path: Path) -> torch.Tensor:
+        return read_depth_npy(path) if path.suffix == ".npy" else read_depth_png(path, self.depth_factor)

@@ -168,6 +168,13 @@ def check_frame_shapes(
         raise DatasetError(f"depth {depth_path} is {dw}x{dh} but its image {image_path} is {w}x{h}")
 
 
+def check_depth_shape(camera: PinholeCamera, depth: torch.Tensor, depth_path) -> None:
+    """Raise DatasetError when the depth (H, W), read without its image, is not the camera's size."""
+    dh, dw = depth.shape[-2:]
+    if (dw, dh) != (camera.width, camera.height):
+        raise DatasetError(f"depth {depth_path} is {dw}x{dh} but the camera is {camera.width}x{camera.height}")
+
+
 def resolve_in_root(root: str | os.PathLike, entry: str, where: str) -> Path:
     """The file a list entry names, confined to the dataset folder ``root``.
 
@@ -235,12 +242,20 @@ def undistort_frame(
     registered to the undistorted one. Pixels whose ray leaves the original image become 0; the third result is
     the (H, W) bool mask of the real pixels (None when all are), for :attr:`Frame.valid`.
     """
-    from codeslam.geometry.resample import resample_validity, undistort_depth, undistort_image
+    from codeslam.geometry.resample import resample_validity, undistort_image
 
     image = undistort_image(image[None], camera)[0]
     if depth is not None:
-        depth = undistort_depth(depth[None, None], camera)[0, 0]
+        depth = undistort_depth_map(camera, depth)
     return image, depth, resample_validity(None, camera, camera.without_distortion())
+
+
+def undistort_depth_map(camera: PinholeCamera, depth: torch.Tensor) -> torch.Tensor:
+    """(H, W) depth of a distorted ``camera`` -> (H, W) of ``camera.without_distortion()``, nearest, through the
+    same map as :func:`undistort_frame` (which it serves), for a depth read without its image."""
+    from codeslam.geometry.resample import undistort_depth
+
+    return undistort_depth(depth[None, None], camera)[0, 0]
 
 
 def frame_index(i: int, n: int) -> int:

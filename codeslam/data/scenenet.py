@@ -177,14 +177,14 @@ class SceneNetSequence(Sequence):
     def has_depth(self) -> bool:
         return self._depths is not None
 
-    def __getitem__(self, i: int) -> Frame:
+    def frame(self, i: int, depth: bool = True) -> Frame:
         i = frame_index(i, len(self))
         image = read_rgb(self._photos[i])
-        depth, depth_path = None, None
-        if self._depths is not None:
+        depth_map, depth_path = None, None
+        if depth and self._depths is not None:
             depth_path = self._depths[i]
-            depth = read_depth_png(depth_path, SCENENET_DEPTH_FACTOR)  # ray length, metres
-        check_frame_shapes(self._camera, image, depth, self._photos[i], depth_path)
-        if depth is not None:
-            depth = ray_length_to_z(depth, self._camera)
-        return Frame(float(self._stamps[i]), image, self._camera, depth, self._gt[i].clone(), i)
+            depth_map = read_depth_png(depth_path, SCENENET_DEPTH_FACTOR)  # ray length, metres
+        check_frame_shapes(self._camera, image, depth_map, self._photos[i], depth_path)
+        if depth_map is not None:
+            depth_map = ray_length_to_z(depth_map, self._camera)
+        return Frame(float(self._stamps[i]), image, self._camera, depth_map, self._gt[i].clone(), i)

@@ -118,13 +118,13 @@ class TartanAirSequence(Sequence):
     def has_depth(self) -> bool:
         return self._depths is not None
 
-    def __getitem__(self, i: int) -> Frame:
+    def frame(self, i: int, depth: bool = True) -> Frame:
         i = frame_index(i, len(self))
         image = read_rgb(self._images[i])
-        depth, depth_path = None, None
-        if self._depths is not None:
+        depth_map, depth_path = None, None
+        if depth and self._depths is not None:
             depth_path = self._depths[i]
-            depth = read_depth_npy(depth_path)
-        check_frame_shapes(self._camera, image, depth, self._images[i], depth_path)
+            depth_map = read_depth_npy(depth_path)
+        check_frame_shapes(self._camera, image, depth_map, self._images[i], depth_path)
         pose = None if self._gt is None else self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, depth, pose, i)
+        return Frame(float(self._stamps[i]), image, self._camera, depth_map, pose, i)

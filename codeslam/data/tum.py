@@ -42,6 +42,7 @@ from codeslam.data.association import associate
 from codeslam.data.base import Sequence
 from codeslam.data.frame import Frame
 from codeslam.data.imageio import (
+    check_depth_shape,
     check_frame_shapes,
     frame_index,
     image_size,
@@ -49,6 +50,7 @@ from codeslam.data.imageio import (
     read_rgb,
     require_file,
     resolve_in_root,
+    undistort_depth_map,
     undistort_frame,
 )
 from codeslam.data.textfile import check_increasing, data_lines, finite_floats
@@ -204,18 +206,26 @@ class TumSequence(Sequence):
     def has_depth(self) -> bool:
         return self._depth_files is not None
 
-    def __getitem__(self, i: int) -> Frame:
+    def frame(self, i: int, depth: bool = True) -> Frame:
         i = frame_index(i, len(self))
         image = read_rgb(self._rgb_files[i])
-        depth, depth_path = None, None
-        if self._depth_files is not None:
+        depth_map, depth_path = None, None
+        if depth and self._depth_files is not None:
             depth_path = self._depth_files[i]
-            depth = read_depth_png(depth_path, self.depth_factor)
-        check_frame_shapes(self.source_camera, image, depth, self._rgb_files[i], depth_path)
+            depth_map = read_depth_png(depth_path, self.depth_factor)
+        check_frame_shapes(self.source_camera, image, depth_map, self._rgb_files[i], depth_path)
         valid = None
         if self.undistort:
-            image, depth, valid = undistort_frame(self.source_camera, image, depth)
+            image, depth_map, valid = undistort_frame(self.source_camera, image, depth_map)
         pose = None
         if self._gt is not None and not bool(torch.isnan(self._gt[i]).any()):
             pose = self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, depth, pose, i, valid)
+        return Frame(float(self._stamps[i]), image, self._camera, depth_map, pose, i, valid)
+
+    def depth(self, i: int) -> torch.Tensor | None:
+        i = frame_index(i, len(self))
+        if self._depth_files is None:
+            return None
+        depth = read_depth_png(self._depth_files[i], self.depth_factor)
+        check_depth_shape(self.source_camera, depth, self._depth_files[i])
+        return undistort_depth_map(self.source_camera, depth) if self.undistort else depth

@@ -153,7 +153,7 @@ class VideoSequence(Sequence):
                 "display_rotation_deg": self.rotation, "camera": self.camera_source,
                 **({"fov_guess_deg": self.fov_guess_deg} if self.fov_guess_deg is not None else {})}
 
-    def __getitem__(self, i: int) -> Frame:
+    def frame(self, i: int, depth: bool = True) -> Frame:  # no depth to read
         i = frame_index(i, len(self))
         image = _to_tensor(self._decode(int(self._keep[i])), self.rotation)  # (3, H, W)
         if tuple(image.shape[1:]) != (self.source_camera.height, self.source_camera.width):

@@ -40,6 +40,7 @@ def network_depth_model(model, jacobian_dtype: torch.dtype | None = None) -> Dep
                                 "canonical camera; resample it first")
         return model.linear_decoders(model.features(frame.image[None]), jacobian_dtype=jacobian_dtype)[0]
 
+    decode.reads_depth = False  # frames may come without their depth (CodeSLAM.reads_frame_depth)
     return decode
 
 

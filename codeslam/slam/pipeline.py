@@ -55,7 +55,8 @@ class SLAMRun:
         keyframes: every keyframe (marginalised ones with their final depth).
         camera: the camera the system ran in.
         timings_ms: total wall time per stage (:data:`STAGES`) over the run; "read" is the time the loop waited for
-            each frame (frames are read one ahead on a thread of their own, :func:`read_ahead`).
+            each frame (frames are read one ahead on a thread of their own, :func:`read_ahead`) and, when the
+            frames were read without depth, the keyframes' depth read after the run (:func:`read_keyframe_depths`).
         process_s: wall time inside the system; wall_s: of the whole loop (reading and resampling included).
         readout: the online choice of the rolling-shutter readout and its evidence (None: not estimated).
         trajectory_smoothing: the time scale (s) of the spline that smoothed ``trajectory``'s positions (0: none).
@@ -87,7 +88,9 @@ def run_slam(
     progress: Callable[[int, int, FrameResult], None] | None = None,
 ) -> SLAMRun:
     """Run ``system`` over the frame indices ``frames`` of ``sequence`` (all when None), in the order given, each
-    frame resampled to ``camera``. ``progress(done, total, result)`` is called after every frame."""
+    frame resampled to ``camera``. ``progress(done, total, result)`` is called after every frame. When the system
+    never reads the frames' depth (the network's depth model, :attr:`CodeSLAM.reads_frame_depth`) the frames are
+    read without it and the keyframes get theirs after the run (:func:`read_keyframe_depths`)."""
     frames = range(len(sequence)) if frames is None else frames
     if system.camera is None:
         system.camera = camera
@@ -97,9 +100,10 @@ def run_slam(
     results: list[FrameResult] = []
     process_s = 0.0
     t_start = time.perf_counter()
+    every_depth = system.reads_frame_depth  # else the keyframes' depth only, read after the run
     try:
         with system.tracking_threads():  # parallel: this thread keeps to the tracker's share of the cores
-            for n, (frame, read_ms) in enumerate(read_ahead(sequence, frames)):
+            for n, (frame, read_ms) in enumerate(read_ahead(sequence, frames, depth=every_depth)):
                 t1 = time.perf_counter()
                 result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
                 process_s += time.perf_counter() - t1
@@ -118,6 +122,8 @@ def run_slam(
     for r in results:  # stage times once mapping has finished (a keyframe's mapping is added to its frame)
         for k, v in r.timings_ms.items():
             totals[k] = totals.get(k, 0.0) + v
+    if not every_depth and sequence.has_depth:
+        totals["read"] += read_keyframe_depths(sequence, system)
     visualizer.close()
     return SLAMRun(
         results=results, trajectory=system.trajectory(), keyframe_trajectory=system.keyframe_trajectory(),
@@ -127,13 +133,14 @@ def run_slam(
     )
 
 
-def read_ahead(sequence: Sequence, frames: list[int] | range) -> Iterator[tuple[Frame, float]]:
+def read_ahead(sequence: Sequence, frames: list[int] | range, depth: bool = True) -> Iterator[tuple[Frame, float]]:
     """The frames ``frames`` of ``sequence`` in order, each with the ms the caller waited for it: frame n + 1 is
     read (decoded, undistorted) on a thread of its own while the caller works on frame n, as a camera driver or
     a data loader delivers frames. Image decoding and torch's kernels release the GIL, so on a TUM frame the
     caller waits for little of the 16 ms a read takes alone. One frame ahead at most: memory stays bounded and a
     reading error surfaces at the frame it belongs to. The reading thread runs one torch thread (torch's count is
-    per thread), so it takes no cores from the tracking and mapping threads' share."""
+    per thread), so it takes no cores from the tracking and mapping threads' share. ``depth=False``: the frames
+    come without their depth (:meth:`~codeslam.data.base.Sequence.frame`)."""
 
     frames = list(frames)
     if not frames:
@@ -141,16 +148,29 @@ def read_ahead(sequence: Sequence, frames: list[int] | range) -> Iterator[tuple[
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="codeslam-read", initializer=torch.set_num_threads,
                               initargs=(1,))
     try:
-        ahead = pool.submit(sequence.__getitem__, frames[0])
+        ahead = pool.submit(sequence.frame, frames[0], depth)
         for k in range(len(frames)):
             t0 = time.perf_counter()
             frame = ahead.result()
             waited = 1e3 * (time.perf_counter() - t0)
             if k + 1 < len(frames):
-                ahead = pool.submit(sequence.__getitem__, frames[k + 1])
+                ahead = pool.submit(sequence.frame, frames[k + 1], depth)
             yield frame, waited
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def read_keyframe_depths(sequence: Sequence, system: CodeSLAM) -> float:
+    """Give every keyframe of ``system`` without ``depth_gt`` the dataset's depth of its frame, in its view
+    (:meth:`~codeslam.slam.system.CodeSLAM.keyframe_depth`): what a run on frames read without depth keeps for the
+    report (the map's scale against the dataset's, the keyframes' depth maps). Returns the ms it took."""
+    t0 = time.perf_counter()
+    for kf in system.keyframes:
+        if kf.depth_gt is None:
+            depth = sequence.depth(kf.frame_index)
+            if depth is not None:
+                kf.depth_gt = system.keyframe_depth(kf, depth)
+    return 1e3 * (time.perf_counter() - t0)
 
 
 # ---- ground truth -------------------------------------------------------------------------------------------

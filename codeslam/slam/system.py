@@ -62,7 +62,8 @@ from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, Win
 
 #: A keyframe's depth model: the frame (resampled to the model's camera) -> its linear decoder
 #: ``prox_l(c) = prox0_l + J_l c`` on every pyramid level. The network's reads ``frame.image`` only
-#: (:func:`codeslam.slam.depth.network_depth_model`); a stand-in may read the frame's depth.
+#: (:func:`codeslam.slam.depth.network_depth_model`) and says so by an attribute ``reads_depth = False``, so that
+#: frames may come without their depth (:attr:`CodeSLAM.reads_frame_depth`); a stand-in reads the frame's depth.
 DepthModelFactory = Callable[[Frame], LinearDecoder]
 
 # A frame's status: the map's first keyframe and the frames before the second ('initialising'), tracked
@@ -163,6 +164,18 @@ def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Fr
     return dataclasses.replace(frame, image=image, depth=depth, valid=None if bool(valid.all()) else valid)
 
 
+def _depth_in_view(depth: torch.Tensor, sensor: PinholeCamera, camera: PinholeCamera,
+                   readout: torch.Tensor | None) -> torch.Tensor:
+    """(H, W) depth of the input camera ``sensor`` -> the network's ``camera`` (nearest, as
+    :func:`~codeslam.data.frame.resample_frame` resamples a depth), rectified by the rotation over the readout
+    ``readout`` as the frame's image was (:func:`_rectified`; None: not rectified)."""
+    if sensor != camera:
+        depth = resample_depth(depth[None, None].float(), sensor, camera)[0, 0]
+    if readout is None:
+        return depth
+    return rectify_image(depth[None], source_pixels(camera, sensor, readout), mode="nearest")[0][0]
+
+
 class CodeSLAM:
     """Dense monocular SLAM with learned depth codes (paper Sec. 4).
 
@@ -236,6 +249,22 @@ class CodeSLAM:
     @property
     def window(self) -> SlidingWindow:
         return self.mapper.window
+
+    @property
+    def reads_frame_depth(self) -> bool:
+        """Whether the system reads the frames' depth: only its depth model may, and one that never does says so
+        (``reads_depth = False`` on the factory, as the network's). When it does not, a runner may hand it frames
+        without depth and give the keyframes the dataset's depth afterwards (:meth:`keyframe_depth`), for the
+        report: a monocular run then decodes no depth map it does not use."""
+        return bool(getattr(self.depth_model, "reads_depth", True))
+
+    def keyframe_depth(self, kf: MapKeyframe, depth: torch.Tensor) -> torch.Tensor:
+        """(H, W) the input's depth of ``kf``'s frame (in the input camera, as the dataset gives it) in the
+        keyframe's view: resampled to the network's camera and rectified as its image was, as a keyframe made from
+        a frame with depth keeps it in ``depth_gt``."""
+        if kf.input_camera is None:
+            raise CodeSLAMError(f"keyframe {kf.id} does not know the camera of its input frame")
+        return _depth_in_view(depth, kf.input_camera, kf.view.camera, kf.rectified_by).detach().cpu().float()
 
     @property
     def parallel(self) -> bool:
@@ -697,11 +726,7 @@ class CodeSLAM:
         net, _, sensor, depth = views.raw
         if depth is None:
             return views.frame
-        if sensor != net.camera:  # as resample_frame does for the image
-            depth = resample_depth(depth[None, None].float(), sensor, net.camera)[0, 0]
-        net = dataclasses.replace(net, depth=depth)
-        # rectified again as views.frame was (the same image and mask; _rectified carries the depth along)
-        return net if views.readout is None else _rectified(net, sensor, views.readout)
+        return dataclasses.replace(views.frame, depth=_depth_in_view(depth, sensor, net.camera, views.readout))
 
     def _make_keyframe(self, views: _Views, T_wc: torch.Tensor, kid: int, segment: int) -> MapKeyframe:
         """Decode the frame's depth model (the network's forward pass and code Jacobian, once per keyframe, Sec.
@@ -734,7 +759,8 @@ class CodeSLAM:
             T_wc=project_to_se3(T_wc), code=code, depth_zero=depth_zero,
             uncertainty=None if b is None else b.detach().cpu().float(),
             depth_gt=None if frame.depth is None else frame.depth.detach().cpu().float(), segment=segment,
-            code_basis=basis, free_scale=self.config.window.free_scale,
+            code_basis=basis, free_scale=self.config.window.free_scale, input_camera=views.raw[2],
+            rectified_by=views.readout,
         )
         if views.features is not None and len(views.features) > 0:
             kf.sparse = KeyframeFeatures(views.features, self.sparse.points(views.features, depth_zero))

@@ -79,6 +79,9 @@ class MapKeyframe:
         code_basis: (C, k) when the code is optimised in a subspace of the network's code
             (``window.code_directions``): the network's code is ``code_basis @ code``; None otherwise.
         free_scale: the code's last entry is a log scale of the depth (``window.free_scale``), not the network's.
+        input_camera, rectified_by: the camera of the input frame it was made from and the rotation over the
+            readout its image was rectified by (None: not), to bring the input's depth into its view later
+            (:meth:`~codeslam.slam.system.CodeSLAM.keyframe_depth`).
     """
 
     id: int
@@ -95,6 +98,8 @@ class MapKeyframe:
     segment: int = 0
     code_basis: torch.Tensor | None = None
     free_scale: bool = False
+    input_camera: PinholeCamera | None = None
+    rectified_by: torch.Tensor | None = None
 
     @property
     def network_code(self) -> torch.Tensor:

@@ -339,6 +339,48 @@ def test_tum_undistorts_rgb_and_depth_with_one_map(tmp_path):
     assert f_und.depth[11, 15] == f_raw.depth[11, 15]
 
 
+def _readers_with_depth(tmp_path):
+    """One sequence of every reader that has depth, the distorted ones undistorting it."""
+    write_tum_folder(tmp_path / "tum", calib="30 31 15.5 11.5 0.1 -0.05 0.001 0.002 0.0", gt=False)
+    write_folder(tmp_path / "png", ["a", "b"], depth_ext=".png",
+                 yaml_text="fx: 30\nfy: 31\ncx: 15.5\ncy: 11.5\ndist: [0.1, -0.05, 0.0, 0.0]\ndepth_factor: 1000\n")
+    write_folder(tmp_path / "npy", ["a", "b"], depth_ext=".npy")
+    write_tartanair_folder(tmp_path / "ta", [_ned(), _ned(t=(1, 0, 0))])
+    return [TumSequence(tmp_path / "tum"), FolderSequence(tmp_path / "png"), FolderSequence(tmp_path / "npy"),
+            TartanAirSequence(tmp_path / "ta", camera=TA_CAM),
+            SceneNetSequence(write_scenenet_folder(tmp_path / "sn"), camera=SN_CAM)]
+
+
+def test_frames_read_without_depth_and_depth_read_alone_are_the_whole_frames_parts(tmp_path):
+    # Monocular SLAM with the network's depth reads frames without depth and its keyframes' depth alone.
+    seqs = _readers_with_depth(tmp_path)
+    assert seqs[0].undistort and seqs[0].source_camera.has_distortion
+    assert seqs[1].undistort and seqs[1].source_camera.has_distortion
+    for seq in seqs:
+        assert seq.has_depth
+        for i in (0, -1):
+            whole, bare = seq[i], seq.frame(i, depth=False)
+            assert whole.depth is not None and bare.depth is None, type(seq).__name__
+            assert torch.equal(bare.image, whole.image) and bare.index == whole.index
+            assert bare.timestamp == whole.timestamp and bare.camera == whole.camera
+            assert (bare.valid is None) == (whole.valid is None)
+            assert bare.valid is None or torch.equal(bare.valid, whole.valid)
+            assert torch.equal(seq.depth(i), whole.depth), type(seq).__name__
+    write_euroc_folder(tmp_path / "MH_01")
+    assert EurocSequence(tmp_path / "MH_01").depth(0) is None
+    write_tum_folder(tmp_path / "tum_rgb", depth=False, gt=False)
+    assert TumSequence(tmp_path / "tum_rgb").depth(1) is None
+
+
+def test_a_depth_read_alone_of_the_wrong_size_names_its_file(tmp_path):
+    write_tum_folder(tmp_path / "seq", n=2, gt=False)
+    path = tmp_path / "seq" / "depth"
+    first = sorted(path.iterdir())[0]
+    write_depth_png(first, torch.ones(H + 2, W), 5000)
+    with pytest.raises(DatasetError, match=rf"depth .*{first.name} is {W}x{H + 2} but the camera is {W}x{H}"):
+        TumSequence(tmp_path / "seq").depth(0)
+
+
 # ---------------------------------------------------------------------------------------------- EuRoC
 
 

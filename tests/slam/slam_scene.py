@@ -73,8 +73,8 @@ class MemorySequence(Sequence):
     def __len__(self) -> int:
         return len(self.frames)
 
-    def __getitem__(self, i: int) -> Frame:
-        return self.frames[i]
+    def frame(self, i: int, depth: bool = True) -> Frame:
+        return self.frames[i] if depth else replace(self.frames[i], depth=None)
 
 
 def small_config(**window) -> SLAMConfig:

@@ -17,6 +17,7 @@ from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.image import image_pyramid
 from codeslam.geometry.proximity import depth_to_prox
 from codeslam.network import CodeNetwork, NetworkConfig
+from codeslam.slam.config import SLAMConfig
 from codeslam.slam.depth import (
     fill_depth_holes,
     network_depth_model,
@@ -24,6 +25,7 @@ from codeslam.slam.depth import (
     standin_true_code,
     true_prior_depth_model,
 )
+from codeslam.slam.system import CodeSLAM
 
 
 def test_standin_reaches_the_measured_depth_at_its_true_code():
@@ -52,6 +54,15 @@ def test_network_depth_model_decodes_like_the_network():
     other = dataclasses.replace(frame, camera=canonical_camera(64, 48, hfov_deg=70))
     with pytest.raises(CodeSLAMError, match="canonical camera"):
         network_depth_model(model)(other)
+
+
+def test_only_the_network_says_it_never_reads_a_frames_depth():
+    # The runner reads frames without depth for it (CodeSLAM.reads_frame_depth); the stand-ins need the depth.
+    model = _tiny_model()
+    cfg = SLAMConfig()
+    assert not CodeSLAM(cfg, network_depth_model(model)).reads_frame_depth
+    assert CodeSLAM(cfg, standin_depth_model()).reads_frame_depth
+    assert CodeSLAM(cfg, true_prior_depth_model(network_depth_model(model))).reads_frame_depth
 
 
 def _tiny_model() -> DepthModel:

@@ -1,17 +1,23 @@
 """The runner reads one frame ahead on a thread of its own (issue 12): frames come in the order asked for, the next
 one is read while the caller works on the current one, a reading error surfaces at its own frame, and no reading
-thread outlives the loop."""
+thread outlives the loop. With a depth model that never reads depth (the network's) the frames are read without it
+and the keyframes get the dataset's depth after the run, the same maps as a run on frames with depth."""
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 
 import pytest
 import torch
-from slam_scene import MemorySequence, preset_frames
+from slam_scene import MemorySequence, preset_frames, rolling_shutter_frames, small_config
 
 from codeslam.errors import DatasetError
-from codeslam.slam.pipeline import read_ahead
+from codeslam.geometry.camera import canonical_camera
+from codeslam.geometry.proximity import depth_to_prox
+from codeslam.sfm.decoder import standin_decoder
+from codeslam.slam.pipeline import read_ahead, run_slam
+from codeslam.slam.system import CodeSLAM
 
 
 class _Recording(MemorySequence):
@@ -20,15 +26,22 @@ class _Recording(MemorySequence):
     def __init__(self, frames, fail_at: int | None = None) -> None:
         super().__init__(frames)
         self.reads: list[tuple[int, str]] = []
+        self.depth_asked: list[bool] = []
+        self.depth_reads: list[int] = []
         self.fail_at = fail_at
         self.read_event = {i: threading.Event() for i in range(len(frames))}
 
-    def __getitem__(self, i):
+    def frame(self, i, depth=True):
         if i == self.fail_at:
             raise DatasetError(f"frame {i} is unreadable")
         self.reads.append((i, threading.current_thread().name))
+        self.depth_asked.append(depth)
         self.read_event[i].set()
-        return self.frames[i]
+        return super().frame(i, depth)
+
+    def depth(self, i):  # a depth read alone, as the readers with depth do it
+        self.depth_reads.append(i)
+        return self.frames[i].depth
 
 
 def _reading_threads() -> list[str]:
@@ -79,3 +92,42 @@ def test_the_reading_thread_leaves_the_callers_torch_threads():
         assert counts == [2, 2, 2]  # the reader runs one thread of its own; the caller keeps its two
     finally:
         torch.set_num_threads(before)
+
+
+def _wall_model(reads_depth: bool | None):
+    """A depth model that decodes every frame to a plane 3 m away without looking at its depth (as the network
+    reads only the image); ``reads_depth`` False says so, None leaves the attribute off (a model that may)."""
+
+    def decode(frame):
+        h, w = frame.image.shape[-2:]
+        prox = depth_to_prox(torch.full((h, w), 3.0, dtype=torch.float64), 1.5)
+        return standin_decoder(prox, 8, 3, 1.5)
+
+    if reads_depth is not None:
+        decode.reads_depth = reads_depth
+    return decode
+
+
+def test_frames_come_without_depth_to_a_model_that_never_reads_it_and_keyframes_get_theirs_after_the_run():
+    # A turning camera's frames at 128x96, the system in 64x48 with a rolling shutter: each keyframe's depth is
+    # resampled and rectified by the readout its image was.
+    frames = rolling_shutter_frames(0.5, frames=10, width=128, height=96)
+    cfg = small_config(size=3)
+    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_estimate=False,
+                                                               rolling_shutter_readout=0.5))
+    runs = {}
+    for reads_depth in (False, None):
+        seq = _Recording(frames)
+        system = CodeSLAM(cfg, _wall_model(reads_depth))
+        assert system.reads_frame_depth == (reads_depth is None)
+        runs[reads_depth] = (run_slam(seq, system, canonical_camera(64, 48)), seq)
+    (bare, bare_seq), (whole, whole_seq) = runs[False], runs[None]
+    assert bare_seq.depth_asked == [False] * 10 and whole_seq.depth_asked == [True] * 10
+    assert whole_seq.depth_reads == [] and sorted(bare_seq.depth_reads) == [k.frame_index for k in bare.keyframes]
+    assert len(bare.keyframes) >= 2 and [k.frame_index for k in bare.keyframes] == [k.frame_index for k in
+                                                                                    whole.keyframes]
+    assert any(k.rectified_by is not None for k in bare.keyframes)
+    for a, b in zip(bare.keyframes, whole.keyframes):
+        assert a.depth_gt is not None and a.depth_gt.shape == (48, 64)
+        assert torch.equal(a.depth_gt, b.depth_gt)  # the same map as from frames read with their depth
+        assert torch.equal(a.T_wc, b.T_wc)
