@@ -116,16 +116,22 @@ def point_jacobians(x_B: torch.Tensor, ray_A: torch.Tensor, T_BA: torch.Tensor) 
     return dx_dxi, dx_dd
 
 
-def pose_row(dr_dx: torch.Tensor, x_B: torch.Tensor) -> torch.Tensor:
+def pose_row(dr_dx: torch.Tensor, x_B: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
     """``dr_dx @ (d x / d xi_BA)`` without forming the (P, N, 3, 6) Jacobian of :func:`point_jacobians`.
 
     dr_dx (P, N, 3) the derivative of a scalar residual w.r.t. the warped point x_B = R p + t (P, N, 3)
     -> (P, N, 6). For a row a: ``a^T (-y)^x = (y x a)^T``, so Eq. 7 gives ``a`` and Eq. 8 ``(R p) x a``; the SE(3)
-    left increment adds ``t x a`` (see :func:`point_jacobians`), in total ``[a, x x a]``.
+    left increment adds ``t x a`` (see :func:`point_jacobians`), in total ``[a, x x a]``. ``out``: a (P, N, 6)
+    view to write the row into (and return), e.g. the pose columns of a larger Jacobian: concatenating and then
+    copying took 3.1 ms for 12 pairs of 128x96 pixels against 2.1 written in place (2 threads).
     """
     # One cross product with x itself: the two of (R p) x a + t x a, and R p = x - t, took 1.0-2.3 ms against
     # 0.5 ms for 6 pairs of 128x96 pixels, 2 threads.
-    return torch.cat([dr_dx, torch.linalg.cross(x_B, dr_dx, dim=-1)], dim=-1)  # SE(3) left: [a, x x a]
+    if out is None:
+        return torch.cat([dr_dx, torch.linalg.cross(x_B, dr_dx, dim=-1)], dim=-1)  # SE(3) left: [a, x x a]
+    out[..., :3] = dr_dx
+    torch.linalg.cross(x_B, dr_dx, dim=-1, out=out[..., 3:])
+    return out
 
 
 def warp_jacobians(
