@@ -96,6 +96,16 @@ class SfMConfig:
     gradient_mode: str = "sobel"
     """Image gradient at w: 'sobel' (smooth, Kerl et al.) or 'interpolant' (exact slope of the bilinear lookup,
     what autograd through the lookup gives; used to check the Jacobians against autograd)."""
+    weights_per_level: bool = False
+    """Hold the residuals' fixed weights (loss (iv)'s slant weight of A's decoded surface, loss (v)'s occlusion
+    weight) and their sigmas (the geometric term's, with the network's uncertainty) at the values of a pyramid
+    level's first evaluation through that level's Levenberg-Marquardt run, as constants of an iteratively
+    reweighted least-squares step, instead of recomputing them at every evaluation. Those factors move with the
+    codes and poses but are not differentiated, so recomputed at every trial step they change the cost the normal
+    equations do not model, and the solver rejects steps the model rightly promised: in the SLAM window's solves on
+    TUM fr1/rpy the first step of a level was accepted and the next three, each ten times more damped and
+    promising 4e-4 to 3e-3 of the cost, rejected. Levels start from fresh weights. Off for ``codeslam sfm``; the
+    SLAM window holds them (``docs/results/slam_table.md``, session of 2026-12-03, thirty-fourth)."""
 
     # --- priors ----------------------------------------------------------------------------------------------
     code_prior_weight: float = 1.0

@@ -37,7 +37,9 @@ class PairProblem:
     """The cost of one pyramid level: robust pair residuals + the VAE code prior ``0.5 w |c|^2`` + the affine
     prior (+ the readout-rotation prior with ``cfg.rolling_shutter``) + optional linear priors.
 
-    level: stacked keyframes; pairs (P, 2) long (A, B); cfg: residual/loss settings and prior weights.
+    level: stacked keyframes; pairs (P, 2) long (A, B); cfg: residual/loss settings and prior weights. With
+    ``cfg.weights_per_level`` the fixed weights and sigmas of the problem's first evaluation are held for every
+    later one (the coarse-to-fine loop builds one problem per level).
     """
 
     def __init__(
@@ -47,6 +49,7 @@ class PairProblem:
             raise CodeSLAMError("a frame pair must join two different frames")
         self.level, self.pairs, self.cfg, self.priors = level, pairs, cfg, list(priors)
         self.pair_b = sorted({int(b) for b in pairs[:, 1].tolist()})
+        self._held: tuple[torch.Tensor, torch.Tensor] | None = None  # cfg.weights_per_level: (fixed_weight, sigma)
         # The cost's own priors, then the extra terms (:mod:`codeslam.sfm.priors`). The state has readout
         # rotations only with cfg.rolling_shutter (see sfm).
         self.fixed_priors = [CodePrior(cfg.code_prior_weight)]  # VAE prior N(0, I) (Sec. 2.1)
@@ -67,6 +70,11 @@ class PairProblem:
     def evaluate(self, state: SfMState) -> tuple[float, PairEvaluation]:
         affine = state.affine if self.cfg.affine_brightness else None
         ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg, rs=state.rs)
+        if self.cfg.weights_per_level:  # the first evaluation's weights priced at every later one (SfMConfig)
+            if self._held is None:
+                self._held = (ev.fixed_weight, ev.sigma)
+            else:
+                ev.fixed_weight, ev.sigma = self._held
         _, ev.cost = robust_weights(ev, self.cfg.masked_rows)
         return float(ev.cost.sum() + self._prior_cost(state)), ev
 

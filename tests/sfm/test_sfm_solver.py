@@ -329,3 +329,27 @@ def test_linear_prior_delta_is_each_blocks_local_difference():
     expect = torch.cat([state.local_difference(b, v) for b, v in zip(blocks, x0)])
     assert torch.allclose(prior.delta(state), expect, rtol=1e-12, atol=1e-13)
     assert float(expect[4:10].abs().max()) > 0.1  # the poses are far from their x0
+
+
+def test_a_level_holds_its_first_evaluations_weights_only_when_asked():
+    """``weights_per_level``: the slant and occlusion weights and the sigmas of a problem's first evaluation price
+    every later evaluation of that problem (a new problem, the next level, starts from fresh ones); off, every
+    evaluation computes its own. The residuals are always the state's."""
+    kfs, codes, gt = make_frames(GT_POSES[:2], panel=True, seed=1, levels=1, width=32, height=24)
+    level = build_levels(kfs, [0])[0]
+    pairs = torch.tensor([[0, 1], [1, 0]])
+    g = torch.Generator().manual_seed(5)
+    start = SfMState(gt.clone(), codes.clone(), torch.zeros(2, 2, dtype=D))
+    moved = SfMState(se3_exp(torch.tensor([0.02, -0.01, 0.0, 0.01, 0.0, 0.0], dtype=D)) @ gt,
+                     codes + 0.5 * torch.randn(codes.shape, generator=g, dtype=D), torch.zeros(2, 2, dtype=D))
+    for held in (False, True):
+        cfg = SfMConfig(weights_per_level=held)
+        problem = PairProblem(level, pairs, cfg)
+        _, first = problem.evaluate(start)
+        cost, later = problem.evaluate(moved)
+        fresh_cost, fresh = PairProblem(level, pairs, cfg).evaluate(moved)
+        assert not torch.equal(fresh.fixed_weight, first.fixed_weight)  # the move changes the weights
+        assert torch.equal(later.r, fresh.r) and torch.equal(later.valid, fresh.valid)
+        kept = first if held else fresh
+        assert torch.equal(later.fixed_weight, kept.fixed_weight) and torch.equal(later.sigma, kept.sigma)
+        assert (cost != fresh_cost) == held

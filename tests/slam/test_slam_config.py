@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from codeslam.errors import ConfigError
+from codeslam.sfm.config import SfMConfig
 from codeslam.slam.config import SLAMConfig, WindowConfig, load_config, overlay_config
 
 
@@ -13,6 +14,9 @@ def test_defaults_are_the_papers_window_and_coarse_to_fine_tracking():
     assert cfg.window.size == 4 and cfg.window.marginalise
     assert cfg.tracker.pyramid_levels[0] > cfg.tracker.pyramid_levels[-1] == 0
     assert cfg.decoder_levels == 4
+    # the window's solves hold a level's weights (SfMConfig.weights_per_level); `codeslam sfm`'s do not
+    assert cfg.window.sfm.weights_per_level and not SfMConfig().weights_per_level
+    assert not overlay_config(cfg, {"window": {"sfm": {"weights_per_level": False}}}).window.sfm.weights_per_level
 
 
 def test_yaml_overlay_of_nested_sections(tmp_path):
