@@ -318,9 +318,10 @@ def _default_window_sfm() -> SfMConfig:
     # weights_per_level: the slant and occlusion weights and the geometric sigmas held through each level's run
     # (SfMConfig.weights_per_level). Recomputed at every trial step, they moved the cost the normal equations do not
     # model: a level's first step was accepted and its next three, each ten times more damped, rejected (TUM fr1/rpy
-    # window solves: 1.96 of 4.13 finest-level iterations rejected -> 0.50). In the 13-run suite (1 thread, session
-    # of 2026-12-03, thirty-fourth) iterations per solve fell on every run (TUM 10 -> 7) and the ATE's geometric mean
-    # went 0.94x (TUM fr1/rpy 0.0131 -> 0.0099 m, the four stand-in runs 0.85-0.93x, the HoloLens walk 1.01x).
+    # window solves: 1.96 of 4.13 finest-level iterations rejected -> 0.50). In 17 suite runs (1 thread, session
+    # of 2026-12-03, thirty-fourth) iterations per solve fell or held on every run (TUM 10 -> 7) and the ATE's
+    # geometric mean went 0.95x over the 16 at every frame (TUM fr1/rpy 0.0131 -> 0.0099 m, the four stand-in runs
+    # 0.85-0.93x, walks and corridors 0.96-1.03x, the HoloLens walk 1.01x).
     return SfMConfig(pyramid_levels=(2, 1, 0), max_iterations=(8, 6, 5), sigma_geometric=0.25,
                      rejection_stop_decrease=3e-4, relative_cost_tolerance=3e-4, masked_rows="common",
                      weights_per_level=True)
