@@ -216,6 +216,7 @@ def evaluate_pairs(
     with_gradients: bool = True,
     sampler: Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]] = bilinear_sample,
     rs: torch.Tensor | None = None,
+    weights: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> PairEvaluation:
     """Residuals of every pair (differentiable in poses, codes and affine; masks and weights are detached).
 
@@ -225,6 +226,8 @@ def evaluate_pairs(
     (img (B, C, H, W), uv (B, N, 2)) -> (values (B, C, N), valid), by default
     :func:`~codeslam.geometry.image.bilinear_sample`. ``rs`` (F, 3): every frame's rotation over its readout, for
     the rolling-shutter warp (:func:`~codeslam.sfm.warp.warp_rolling_shutter`); None for global shutters.
+    ``weights``: the fixed weights and sigmas (P, T, N) of an earlier evaluation to use instead of computing them
+    (:attr:`SfMConfig.weights_per_level`; the slant weight's normals are then not formed).
     """
     types = cfg.residual_types
     P = pairs.shape[0]
@@ -294,42 +297,43 @@ def evaluate_pairs(
         dgeo_dprox_B = torch.ones_like(prox_B)
 
     rs, sigmas, fixed, valids, hubers = [], [], [], [], []
-    w_slant = slant_weight(depth.detach(), level.params, cfg.slant_cos_min)[iA].reshape(P, -1)  # (iv)
     ones = torch.ones_like(d_A)
     prox_B_ok = sampled[:, 2].detach() > BILINEAR_ALL_VALID  # all four bilinear neighbours of B's proximity valid
-    occluded = (z > depth_B_at_v * (1.0 + cfg.occlusion_margin)) & prox_B_ok  # (v): behind B's surface
+    if weights is None:
+        w_slant = slant_weight(depth.detach(), level.params, cfg.slant_cos_min)[iA].reshape(P, -1)  # (iv)
+        occluded = (z > depth_B_at_v * (1.0 + cfg.occlusion_margin)) & prox_B_ok  # (v): behind B's surface
+        w_occ = torch.where(occluded.detach(), cfg.occlusion_weight * ones, ones)
     for t in types:
         if t == PHOTOMETRIC:
             r = level.gray[iA].reshape(P, -1) - (gain * gray_B + bias)  # Eq. 13 with affine brightness (Sec. 5.2)
-            fixed.append(w_slant * torch.where(occluded.detach(), cfg.occlusion_weight * ones, ones))
-            sigmas.append(cfg.sigma_photometric * ones)
+            if weights is None:
+                fixed.append(w_slant * w_occ)
+                sigmas.append(cfg.sigma_photometric * ones)
             # (i): only real image pixels, at u in A and in all four bilinear neighbours of v in B.
             gray_A_ok = gray_ok[iA].reshape(P, -1) > 0.5
             valids.append(valid & gray_A_ok & (sampled[:, 3].detach() > BILINEAR_ALL_VALID))
             hubers.append(cfg.huber_photometric)
         else:
             r = geo_x - geo_B  # Eq. 14 in the space f (log depth or proximity)
-            sig2 = cfg.sigma_geometric**2 * ones
-            if cfg.use_uncertainty and level.uncertainty is not None:
-                # Laplace b (proximity units): variance 2 b^2 per view, carried into f's units at first order.
-                b_A = level.uncertainty[iA].reshape(P, -1)
-                b_B = sampled[:, -1]
-                if cfg.geometric_space == "log_depth":
-                    d_A_safe = torch.where(d_A > 0, d_A, torch.ones_like(d_A))
-                    b_A = b_A * d_depth_d_prox(prox_A, a[iA][:, None]).abs() / d_A_safe
-                    b_B = b_B * dgeo_dprox_B.abs()
-                sig2 = sig2 + 2.0 * b_A**2 + 2.0 * b_B**2
-            sigmas.append(sig2.sqrt().detach())
-            occ_w = w_slant
-            if cfg.occlusion_geometric:
-                occ_w = w_slant * torch.where(occluded.detach(), cfg.occlusion_weight * ones, ones)
             valid_geo = valid & prox_B_ok  # no lookup mixing B's proximity with holes (loss (i))
             stride = max(1, cfg.geometric_stride >> level.level)
             if stride > 1:  # a grid of every stride-th pixel, each standing for stride^2 (SfMConfig)
                 n = torch.arange(H * W, device=prox.device)
                 valid_geo = valid_geo & ((n // W) % stride == 0) & ((n % W) % stride == 0)
-                occ_w = occ_w * float(stride * stride)
-            fixed.append(occ_w)
+            if weights is None:
+                sig2 = cfg.sigma_geometric**2 * ones
+                if cfg.use_uncertainty and level.uncertainty is not None:
+                    # Laplace b (proximity units): variance 2 b^2 per view, carried into f's units at first order.
+                    b_A = level.uncertainty[iA].reshape(P, -1)
+                    b_B = sampled[:, -1]
+                    if cfg.geometric_space == "log_depth":
+                        d_A_safe = torch.where(d_A > 0, d_A, torch.ones_like(d_A))
+                        b_A = b_A * d_depth_d_prox(prox_A, a[iA][:, None]).abs() / d_A_safe
+                        b_B = b_B * dgeo_dprox_B.abs()
+                    sig2 = sig2 + 2.0 * b_A**2 + 2.0 * b_B**2
+                sigmas.append(sig2.sqrt().detach())
+                occ_w = w_slant * w_occ if cfg.occlusion_geometric else w_slant
+                fixed.append(occ_w * float(stride * stride) if stride > 1 else occ_w)
             valids.append(valid_geo)
             hubers.append(cfg.huber_geometric)
         rs.append(r)
@@ -339,8 +343,8 @@ def evaluate_pairs(
         types=types,
         r=r_t,
         valid=valid_t,
-        sigma=torch.stack(sigmas, dim=1),
-        fixed_weight=torch.stack(fixed, dim=1).detach(),
+        sigma=torch.stack(sigmas, dim=1) if weights is None else weights[1],
+        fixed_weight=torch.stack(fixed, dim=1).detach() if weights is None else weights[0],
         huber=torch.tensor(hubers, dtype=prox.dtype, device=prox.device),
         T_BA=T_BA,
         x_B=x_B,

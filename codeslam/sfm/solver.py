@@ -69,12 +69,11 @@ class PairProblem:
 
     def evaluate(self, state: SfMState) -> tuple[float, PairEvaluation]:
         affine = state.affine if self.cfg.affine_brightness else None
-        ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg, rs=state.rs)
-        if self.cfg.weights_per_level:  # the first evaluation's weights priced at every later one (SfMConfig)
-            if self._held is None:
-                self._held = (ev.fixed_weight, ev.sigma)
-            else:
-                ev.fixed_weight, ev.sigma = self._held
+        # cfg.weights_per_level: the first evaluation's weights priced at every later one, which does not form them
+        ev = evaluate_pairs(self.level, self.pairs, state.poses, state.codes, affine, self.cfg, rs=state.rs,
+                            weights=self._held)
+        if self.cfg.weights_per_level and self._held is None:
+            self._held = (ev.fixed_weight, ev.sigma)
         _, ev.cost = robust_weights(ev, self.cfg.masked_rows)
         return float(ev.cost.sum() + self._prior_cost(state)), ev
 
