@@ -157,6 +157,18 @@ class WindowReport:
         return sum(r.iterations for _, r in self.levels)
 
 
+@dataclass
+class WindowSolution:
+    """What one window solve reached (:meth:`SlidingWindow.solve`): the keyframe ids in window order, their poses
+    (4, 4) and codes, each solved pair's affine brightness (id pair -> (2,)) and the report."""
+
+    ids: list[int]
+    poses: list[torch.Tensor]
+    codes: list[torch.Tensor]
+    affine: dict[tuple[int, int], torch.Tensor]
+    report: WindowReport
+
+
 def schur_complement(
     H: torch.Tensor, g: torch.Tensor, marg: torch.Tensor, keep: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
@@ -361,9 +373,16 @@ class SlidingWindow:
         from their current values; writes the results back into the keyframes. ``interrupted()`` is asked before
         every iteration: when it turns true the solve ends there, keeping what it has reached (as ORB-SLAM's
         local mapping stops its bundle adjustment when a new keyframe arrives)."""
+        return self.apply(self.solve(interrupted))
+
+    def solve(self, interrupted: Callable[[], bool] | None = None) -> WindowSolution:
+        """What :meth:`optimise` reaches, without writing it into the keyframes (:meth:`apply` does): the solve
+        reads the window and changes nothing, so it can run on a copy elsewhere
+        (:mod:`codeslam.slam.solve_process`)."""
         report = WindowReport()
+        ids = [k.id for k in self.keyframes]
         if len(self.keyframes) < 2:
-            return report
+            return WindowSolution(ids, [], [], {}, report)
         cfg: SfMConfig = self.cfg.sfm
         dtype, device = self._tensors()
         id_pairs, pairs, state, layout = self.problem()
@@ -380,13 +399,24 @@ class SlidingWindow:
                                                  zip(cfg.pyramid_levels, cfg.max_iterations),
                                                  interrupted=interrupted)
         report.interrupted = bool(report.levels) and report.levels[-1][1].reason == "interrupted"
-        for i, kf in enumerate(self.keyframes):
-            kf.T_wc = project_to_se3(state.poses[i])
-            kf.code = state.codes[i].detach().clone()
-        for p, ids in enumerate(id_pairs):
-            self._affine[ids] = state.affine[p].detach().clone()
-        self._pairs = report.pairs = id_pairs
-        return report
+        report.pairs = id_pairs
+        return WindowSolution(ids, [project_to_se3(state.poses[i]) for i in range(len(ids))],
+                              [state.codes[i].detach().clone() for i in range(len(ids))],
+                              {p: state.affine[i].detach().clone() for i, p in enumerate(id_pairs)}, report)
+
+    def apply(self, solution: WindowSolution) -> WindowReport:
+        """Write a :meth:`solve`'s poses, codes and affine estimates into the window (whose keyframes must be the
+        ones it was solved for); returns its report."""
+        if solution.ids != [k.id for k in self.keyframes]:
+            raise ValueError(f"a solve of keyframes {solution.ids} applied to a window of "
+                             f"{[k.id for k in self.keyframes]}")
+        if not solution.poses:  # fewer than two keyframes: nothing was solved
+            return solution.report
+        for kf, T_wc, code in zip(self.keyframes, solution.poses, solution.codes):
+            kf.T_wc, kf.code = T_wc, code
+        self._affine.update(solution.affine)
+        self._pairs = solution.report.pairs
+        return solution.report
 
     # ---- keeping the map -------------------------------------------------------------------------------------
     def snapshot(self) -> WindowSnapshot:
