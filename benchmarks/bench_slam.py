@@ -11,10 +11,11 @@ memory, by default the walk at 10 frames/s) and each mapping mode it runs the wh
 * each frame's time in ``CodeSLAM.process`` on the tracking thread, wall and that thread's CPU time (median and
   90th percentile ms; in parallel mode the difference is waiting: for an urgent keyframe, the GIL or a core), and
   the mapping steps' wall and CPU time in all (s; their stages decode, marginalise and window, as the mapping
-  thread's clock timed them);
+  thread's clock timed them; with ``window.solve_process`` the window solves run in a child process, whose CPU
+  time is printed on its own line, :mod:`codeslam.slam.solve_process`);
 * map updates (window solves) per second of wall time, keyframes, failed frames, and the window solves cut short
   by the tracker (parallel mode; in brackets those cut before their first iteration);
-* peak resident memory (MB);
+* peak resident memory (MB; with the window's solver process, its peak added to the run's: an upper bound);
 * ATE Sim(3) and the orientation error after the best rotation alignment, so a speed-up is read beside what it
   costs;
 
@@ -101,10 +102,12 @@ def _run(spec: dict, mode: str, args: dict, out: mp.Queue) -> None:
         v = [r.timings_ms.get(k, 0.0) for r in kf_results] or [0.0]
         stages[k] = (float(np.median(v)), float(np.percentile(v, 90)))
     ev = evaluate_run_if_possible(run.trajectory, ground_truth(seq, list(range(n))))
+    child = resource.getrusage(resource.RUSAGE_CHILDREN)  # the solver process (parallel mode), ended by run_slam
     out.put({
         "frames": n, "fps": n / wall, "fps_system": run.fps, "keyframes": len(run.keyframes),
         "updates_per_s": system.mapper.updates / wall, "failed": sum(not r.tracking_ok for r in run.results),
-        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "stages": stages,
+        "peak_mb": (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss + child.ru_maxrss) / 1024.0,
+        "solver_cpu_s": child.ru_utime + child.ru_stime, "stages": stages,
         "ate_sim3": ev.get("ate_sim3_rmse"), "rot_deg": ev.get("rot_aligned_rmse_deg"),
         "frame_wall": (float(np.median(tracker["wall"])), float(np.percentile(tracker["wall"], 90))),
         "frame_cpu": (float(np.median(tracker["cpu"])), float(np.percentile(tracker["cpu"], 90))),
@@ -253,6 +256,8 @@ def main() -> None:
         print(f"{label:24s}" + "".join(f"{f'{m:.1f} / {p:.1f}':>{w}s}" for m, p in (r[key] for r in table.values())))
     mapping = ["{:.1f} / {:.1f}".format(r["mapping_wall_s"], r["mapping_cpu_s"]) for r in table.values()]
     print(f"{'mapping wall / CPU s':24s}" + "".join(f"{v:>{w}s}" for v in mapping))
+    solver = ["{:.1f}".format(r["solver_cpu_s"]) for r in table.values()]
+    print(f"{'solver process CPU s':24s}" + "".join(f"{v:>{w}s}" for v in solver))
     solves = ["{} / {} ({})".format(r["solves"]["cut_short"], r["solves"]["window_solves"],
                                     r["solves"]["cut_before_first_iteration"]) for r in table.values()]
     print(f"{'solves cut / all (at 0)':24s}" + "".join(f"{v:>{w}s}" for v in solves))

@@ -443,6 +443,14 @@ class WindowConfig:
     """Parallel mapping: a keyframe the tracker needs at once (the last one is leaving the view) stops the running
     window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops
     its bundle adjustment for a new keyframe; the next solve goes on from there."""
+    solve_process: bool = False
+    """Parallel mapping on the CPU: the window solve runs in a child process (:mod:`codeslam.slam.solve_process`)
+    instead of on the mapping thread, so that its Python work does not take turns with the tracker's for the GIL
+    (the same values either way; the sequential mode and a GPU device always solve in place). Off by default:
+    measured (docs/results/slam_table.md, thirty-fifth session; ``--parallel --threads 2``, alternating), TUM
+    fr1/rpy 39.1 / 31.1 -> 33.4 / 30.6 s wall, tracking stage median 55 / 49 -> 41 / 38 ms, window median
+    1356 / 1007 -> 957 / 944 ms; the HoloLens walk, whose solves are nearly all cut short by the tracker,
+    39.9 / 50.0 / 47.7 -> 49.9 / 53.1 / 43.5 s: no gain there within the machine's spread."""
 
     def __post_init__(self) -> None:
         if self.size < 2:

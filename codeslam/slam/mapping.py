@@ -39,6 +39,7 @@ from codeslam.geometry.splat import splat_depth
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.frontend import SparseTrack, SparseTracker
 from codeslam.slam.map_prior import map_prior
+from codeslam.slam.solve_process import SolverProcess
 from codeslam.slam.window import MapKeyframe, SlidingWindow, WindowReport, WindowSnapshot
 
 
@@ -112,6 +113,10 @@ class Mapper:
         self._decoded.set()
         self._stop_solve = threading.Event()  # set by the tracker that needs the thread: end the solve early
         self._thread: threading.Thread | None = None
+        self._solver: SolverProcess | None = None  # window.solve_process: the child that solves windows
+        in_process = config.window.solve_process and str(config.device).startswith("cpu")
+        if parallel and in_process and SolverProcess.supported():
+            self._solver = SolverProcess(threads or 1)  # starts now, beside the first frames; used once ready
         self.updates = 0  # window solves finished
 
     # ---- asking for keyframes -----------------------------------------------------------------------------
@@ -173,6 +178,9 @@ class Mapper:
             self._jobs.put(None)
             self._thread.join()
             self._thread = None
+        if self._solver is not None:
+            self._solver.close()
+            self._solver = None
 
     def _loop(self) -> None:
         if self.threads is not None:  # this thread's own OpenMP team (the tracker keeps its count)
@@ -212,7 +220,7 @@ class Mapper:
         before = self.window.snapshot()
         depth_before = {k.id: k.median_depth() for k in self.window.keyframes}
         with self.clock("window"):
-            report = self.window.optimise(self._stop_solve.is_set)  # codes and poses: photometric, geometric, keypoints
+            report = self._optimise()  # codes and poses: photometric, geometric, keypoints
             if self.config.window.rollback:
                 # The new keyframe's depth before its first solve is the network's single view, not a map estimate:
                 # that solve may rightly rescale it by any factor (the map's scale and the view's can differ 3x).
@@ -226,6 +234,12 @@ class Mapper:
         return MappingResult(kf, report, marginalised, job.frame_position,
                              before if self.config.window.rollback and not report.rejected else None,
                              self.clock.split())  # parallel: the decoding's time went with the keyframe
+
+    def _optimise(self) -> WindowReport:
+        """The window solve: in the solver process once it has started (``window.solve_process``), else here."""
+        if self._solver is not None and self._solver.ready:
+            return self._solver.optimise(self.window, self._stop_solve.is_set)
+        return self.window.optimise(self._stop_solve.is_set)
 
     def _prior_from_map(self, kf: MapKeyframe) -> MapKeyframe:
         """The new keyframe with its zero-code depth moved toward the map's (``window.map_prior_weight``,
