@@ -9,15 +9,14 @@ captured window solve repeated beside it): a non-keyframe's time on the tracking
 tracking stage alone 35.3 / 43.6 / 38.1 ms (docs/results/slam_table.md, thirty-fifth session). The solve reads
 the window and returns its result (:meth:`SlidingWindow.solve`), so it can run on a copy elsewhere.
 
-How. A child interpreter (:func:`main`, started with the parallel mapper; a
-fresh interpreter rather than a fork of a process that runs OpenMP and reader threads) receives a pickled copy
-of the window and sends back its :class:`~codeslam.slam.window.WindowSolution`, which the mapping thread applies.
-A keyframe's view (its images and decoder, the bulk of the bytes) is sent once and kept there while the keyframe
-is in the window; each solve sends the small rest (poses, codes, matches, the marginal prior). The mapping
-thread waits for the answer in ``poll``, which releases the GIL. The tracker's wish to interrupt a solve
-(``Mapper.wait(interrupt=True)``) reaches the child as a message that its solve checks before every iteration.
-Until the child has started (importing torch takes seconds) solves run on the mapping thread as before; the
-same solve in either place gives the same values (tested).
+How. A child interpreter (:func:`main`, started with the parallel mapper; a fresh interpreter rather than a fork of
+a process that runs OpenMP and reader threads) receives a pickled copy of the window and sends back its
+:class:`~codeslam.slam.window.WindowSolution`, which the mapping thread applies. A keyframe's view (its images and
+decoder, the bulk of the bytes) is sent once and kept there while the keyframe is in the window; each solve sends
+the small rest (poses, codes, matches, the marginal prior). The mapping thread waits for the answer in ``poll``,
+which releases the GIL. The tracker's wish to interrupt a solve (``Mapper.wait(interrupt=True)``) reaches the child
+as a message that its solve checks before every iteration. Until the child has started (importing torch takes
+seconds) solves run on the mapping thread as before; the same solve in either place gives the same values (tested).
 """
 
 from __future__ import annotations
