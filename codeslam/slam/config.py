@@ -444,13 +444,15 @@ class WindowConfig:
     window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops
     its bundle adjustment for a new keyframe; the next solve goes on from there."""
     solve_process: bool = False
-    """Parallel mapping on the CPU: the window solve runs in a child process (:mod:`codeslam.slam.solve_process`)
-    instead of on the mapping thread, so that its Python work does not take turns with the tracker's for the GIL
-    (the same values either way; the sequential mode and a GPU device always solve in place). Off by default:
-    measured (docs/results/slam_table.md, thirty-fifth session; ``--parallel --threads 2``, alternating), TUM
-    fr1/rpy 39.1 / 31.1 -> 33.4 / 30.6 s wall, tracking stage median 55 / 49 -> 41 / 38 ms, window median
-    1356 / 1007 -> 957 / 944 ms; the HoloLens walk, whose solves are nearly all cut short by the tracker,
-    39.9 / 50.0 / 47.7 -> 49.9 / 53.1 / 43.5 s: no gain there within the machine's spread."""
+    """Parallel mapping on the CPU: the window solve and the marginalisation run in a child process
+    (:mod:`codeslam.slam.solve_process`) instead of on the mapping thread, so that their Python work does not take
+    turns with the tracker's for the GIL (the same values either way; the sequential mode and a GPU device always
+    work in place). Off by default: no whole-run gain on the 2-core machine (docs/results/slam_table.md,
+    thirty-fifth session; ``--parallel --threads 2``, three rounds alternating, wall s on the mapping thread -> in
+    the child): TUM fr1/rpy 31.8 / 29.7 / 28.6 -> 33.8 / 33.0 / 31.8, the HoloLens walk 40.2 / 39.9 / 42.4 -> 38.3 /
+    47.7 / 36.2 (the machine's hour moves either by a quarter). The tracking stage is faster in the child on TUM,
+    but the child costs CPU of its own (its start, 3.9 s until ready; pickled copies of the window) that two cores
+    do not have to spare."""
 
     def __post_init__(self) -> None:
         if self.size < 2:

@@ -214,7 +214,7 @@ class Mapper:
         marginalised = None
         with self.clock("marginalise"):
             if self.window.is_full:  # the oldest keyframe becomes a linear prior on the others
-                marginalised = self.window.remove_oldest().id
+                marginalised = self.window.remove_oldest(self._marginal()).id
         self.window.add(kf)
         self._match(kf, job.ref, job.sparse)
         before = self.window.snapshot()
@@ -234,6 +234,11 @@ class Mapper:
         return MappingResult(kf, report, marginalised, job.frame_position,
                              before if self.config.window.rollback and not report.rejected else None,
                              self.clock.split())  # parallel: the decoding's time went with the keyframe
+
+    def _marginal(self):
+        """What computes the marginal prior: the solver process once it has started (``window.solve_process``),
+        else None (here)."""
+        return self._solver.marginal_prior if self._solver is not None and self._solver.ready else None
 
     def _optimise(self) -> WindowReport:
         """The window solve: in the solver process once it has started (``window.solve_process``), else here."""

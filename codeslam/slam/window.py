@@ -547,11 +547,13 @@ class SlidingWindow:
             x0=x0,
         )
 
-    def remove_oldest(self) -> MapKeyframe:
+    def remove_oldest(self, marginal: Callable[[SlidingWindow], LinearPrior | None] | None = None) -> MapKeyframe:
         """Take the oldest keyframe out of the window: marginalise it into the prior (``cfg.marginalise``) or
-        drop its terms, and freeze it (final depth kept, decoder released)."""
+        drop its terms, and freeze it (final depth kept, decoder released). ``marginal``: what computes the
+        prior from the window (default :meth:`marginal_prior`, here; :mod:`codeslam.slam.solve_process` computes
+        it on a copy)."""
         if self.cfg.marginalise and len(self.keyframes) > 1:
-            self.prior = self.marginal_prior()
+            self.prior = self.marginal_prior() if marginal is None else marginal(self)
         else:
             self.prior = None
         old = self.keyframes.pop(0)
