@@ -114,7 +114,7 @@ class Mapper:
         self._stop_solve = threading.Event()  # set by the tracker that needs the thread: end the solve early
         self._thread: threading.Thread | None = None
         self._solver: SolverProcess | None = None  # window.solve_process: the child that solves windows
-        in_process = config.window.solve_process and str(config.device).startswith("cpu")
+        in_process = config.window.solve_process and torch.device(config.device).type == "cpu"
         if parallel and in_process and SolverProcess.supported():
             self._solver = SolverProcess(threads or 1)  # starts now, beside the first frames; used once ready
         self.updates = 0  # window solves finished
@@ -235,15 +235,20 @@ class Mapper:
                              before if self.config.window.rollback and not report.rejected else None,
                              self.clock.split())  # parallel: the decoding's time went with the keyframe
 
+    def _ready_solver(self) -> SolverProcess | None:
+        """The solver process once it has started (``window.solve_process``), else None: work here."""
+        return self._solver if self._solver is not None and self._solver.ready else None
+
     def _marginal(self):
-        """What computes the marginal prior: the solver process once it has started (``window.solve_process``),
-        else None (here)."""
-        return self._solver.marginal_prior if self._solver is not None and self._solver.ready else None
+        """What computes the marginal prior: the solver process's method, or None (here)."""
+        solver = self._ready_solver()
+        return None if solver is None else solver.marginal_prior
 
     def _optimise(self) -> WindowReport:
-        """The window solve: in the solver process once it has started (``window.solve_process``), else here."""
-        if self._solver is not None and self._solver.ready:
-            return self._solver.optimise(self.window, self._stop_solve.is_set)
+        """The window solve, in the solver process or here."""
+        solver = self._ready_solver()
+        if solver is not None:
+            return solver.optimise(self.window, self._stop_solve.is_set)
         return self.window.optimise(self._stop_solve.is_set)
 
     def _prior_from_map(self, kf: MapKeyframe) -> MapKeyframe:
