@@ -197,6 +197,15 @@ class FeatureConfig:
     kept 12 of the 41; the cost from the prediction is lower (5607 in a run that took it). Where the two starts
     were both aligned on every frame (TUM fr1/rpy, the generator corridor at 320x240, 1 thread), they reached
     the same cost within 2% on all 288 frames, so the retry changes nothing where PnP is right."""
+    direct_first_deg: float = 0.0
+    """Keypoints on demand (0: every frame's, as before): a frame is aligned photometrically from the motion model's
+    prediction alone, without ORB keypoints, when the last frame's tracked pose lay within this many degrees of
+    its own prediction (its rotation error plus its translation error over the keyframe's median depth, in
+    radians, as degrees: the prediction's error in the image, scale-free). That alignment starts at
+    ``tracker.feature_start_level``, as a PnP start does. The keypoints are extracted when it fails or moves the
+    pose more than twice this from the prediction (then the frame is tracked as any other, from PnP), when the
+    frame becomes a keyframe (its keypoints are the map's), and for every frame after one whose prediction missed.
+    DSO's tracker never extracts keypoints; ORB + PnP widen the basin where the motion model is off."""
 
     def __post_init__(self) -> None:
         if self.scale < 1:
@@ -210,6 +219,8 @@ class FeatureConfig:
         for name in ("guided_radius", "pnp_threshold", "sigma"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"features.{name} must be positive, got {getattr(self, name)}")
+        if not self.direct_first_deg >= 0:
+            raise ConfigError(f"features.direct_first_deg must be >= 0, got {self.direct_first_deg}")
         if not self.weight >= 0 or not 0 <= self.max_hamming <= 256 or not 0 <= self.fast_threshold <= 255:
             raise ConfigError("features.weight must be >= 0, max_hamming in [0, 256], fast_threshold in [0, 255]")
         for name in ("min_agreement", "retry_agreement"):

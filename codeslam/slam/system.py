@@ -15,7 +15,8 @@ map within seconds):
 * **Tracking** starts from ORB matches and PnP on the keyframe's decoded depth (:mod:`codeslam.slam.frontend`)
   instead of the motion model alone, and the matches stay in the photometric alignment as reprojection
   residuals (DeepFactors' sparse factors). A frame is tracked when the photometric checks pass or enough
-  matches agree with the final pose.
+  matches agree with the final pose. With ``features.direct_first_deg`` the keypoints are extracted on demand:
+  a frame whose motion the motion model predicted well is aligned from the prediction alone, as DSO does.
 * **Mapping** keeps its map: a window solve that fails :meth:`SlidingWindow.check`, or after which the next
   frame cannot be tracked while it can against the map before the solve, is rolled back.
 * **Recovery**: a frame that fails is relocalised against the window's and older keyframes (ORB + PnP); after
@@ -52,7 +53,7 @@ from codeslam.sfm.keyframes import Keyframe
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.features import Features, scaled_camera
 from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
-from codeslam.slam.keyframes import MAPPING_BUSY, KeyframeDecision, decide_keyframe
+from codeslam.slam.keyframes import MAPPING_BUSY, KeyframeDecision, decide_keyframe, motion_since_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult, torch_threads
 from codeslam.slam.poses import project_to_se3, spread_correction
 from codeslam.slam.readout import CANDIDATES, ReadoutChoice
@@ -87,8 +88,9 @@ class FrameResult:
         reason: why tracking failed, or why the frame became a keyframe (baseline, rotation, overlap, first
             frame, relocalised, new segment).
         segment: the map segment (0 until tracking is lost long enough to start a new one).
-        source: what the pose rests on: 'direct' (photometric only), 'direct+features', 'features' (PnP only),
-            'motion model'.
+        source: what the pose rests on: 'direct' (photometric only; with ``features.direct_first_deg``, a
+            frame aligned from the motion model's prediction without keypoints), 'direct+features', 'features'
+            (PnP only), 'motion model'.
         track: tracking statistics (None for the first frame). keyframe: the keyframe decision (None when not
             tracked). window: the window optimisation run for a new keyframe (else None).
         marginalised_id: id of the keyframe marginalised on this frame, if any.
@@ -140,6 +142,7 @@ class _Views:
     raw: tuple[Frame, Features | None, PinholeCamera, torch.Tensor | None]  # the frame and keypoints before any
     # rolling-shutter rectification, the input camera whose rows were read out and the input's depth (or None)
     readout: torch.Tensor | None = None  # the rotation over the readout the frame was rectified by (None: not)
+    input_frame: Frame | None = None  # the frame as read, kept while its keypoints are put off (features None)
 
 
 def _scaled_translation(T: torch.Tensor, s: float | None) -> torch.Tensor:
@@ -234,6 +237,7 @@ class CodeSLAM:
         self._matches: FrameMatches | None = None  # the last frame's keypoints matched to the reference
         self._last_tracked: tuple | None = None  # (views, ref, sparse, record position) of a tracked non-keyframe
         self._lost = 0  # consecutive frames whose pose is only predicted
+        self._prediction_error = math.inf  # the last frame's tracked pose from its prediction (_deviation)
         self._undo: MappingResult | None = None  # the last window solve, to undo it (sequential mode)
         self._next_id = 0
         tcfg = config.tracker
@@ -300,8 +304,9 @@ class CodeSLAM:
     def _process(self, frame: Frame) -> FrameResult:
         self._check(frame)
         self._apply(self.mapper.collect())  # keyframes the mapping thread finished: track against the newest
+        direct_first = self._direct_first()
         with self._aligning_threads():  # the frame's resampling and keypoints, as its alignment (alignment_threads)
-            views = self._views(frame)
+            views = self._views(frame, features=not direct_first)
         if not self.keyframes:  # the first frame is the map's origin
             return self._start_map(views)
         ref = self.ref
@@ -310,10 +315,21 @@ class CodeSLAM:
             return self._lost_frame(views, ref, T_kf_guess, None, "non-finite pixels in the image")
         with self.clock("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
             track, sparse, source = self._track(views, ref, T_kf_guess)
+        if direct_first and not (track.ok and self._deviation(T_kf_guess, track.T_kf, ref)
+                                 <= 2.0 * self.config.features.direct_first_deg):
+            # The prediction's basin did not hold (the alignment failed, or moved the pose further than a held
+            # prediction is off: on the generator's fast turn, 7 deg from the prediction, the alignment from level 1
+            # stopped 3.7 deg short and passed its checks): keypoints and PnP, as every frame without the setting.
+            views = self._with_features(views)
+            with self.clock("track"):
+                track, sparse, source = self._track(views, ref, T_kf_guess)
+        # how far the motion model was off (FeatureConfig.direct_first_deg); any later retry below: unknown
+        self._prediction_error = self._deviation(T_kf_guess, track.T_kf, ref) if track.ok else math.inf
         rolled_back = ""
         if not track.ok and self._undo is not None:  # the last window solve may have broken the map
             rolled_back = self._roll_back(f"frame {frame.index} failed after it: {track.reason}")
             ref = self.ref
+            views = self._with_features(views)
             with self.clock("track"):
                 track, sparse, source = self._track(views, ref, self._predict(ref))
         self._undo = None
@@ -327,13 +343,16 @@ class CodeSLAM:
             self._apply(self.mapper.collect())  # one handed over meanwhile
             if self.ref is not ref:
                 ref = self.ref
+                views = self._with_features(views)
                 with self.clock("track"):
                     track, sparse, source = self._track(views, ref, self._predict(ref))
         if not track.ok and self._promote_last():  # the previous frame, tracked, becomes the reference
             ref = self.ref
+            views = self._with_features(views)
             with self.clock("track"):
                 track, sparse, source = self._track(views, ref, self._predict(ref))
         if not track.ok:
+            views = self._with_features(views)
             with self.clock("relocalise"):
                 found = self._relocalise(views, ref, T_kf_guess)
             if found is None:
@@ -392,7 +411,7 @@ class CodeSLAM:
         kid, segment = self._new_id(), self.segment
         if estimating:
             self._turn[kid] = (turn, self.readout)  # the readout and turn it is rectified by, next line
-        kviews = self._rerectified(views, turn)
+        kviews = self._rerectified(self._with_features(views), turn)  # a keyframe's keypoints are the map's
         job = MappingJob(lambda: self._make_keyframe(kviews, T_wc, kid, segment), ref, sparse, len(self._records))
         result = self._record(views.frame, ref, track.T_kf, True, **kw)  # re-expressed once mapped
         done = self.mapper.insert(job)  # Sec. 4.3: decode, marginalise, optimise the window
@@ -414,13 +433,20 @@ class CodeSLAM:
                     term = self.sparse.term(ref.sparse, views.features, sparse, self.dtype, self.device)
         frame = views.frame
 
+        # keypoints put off (FeatureConfig.direct_first_deg): the last prediction held within a degree or so, inside
+        # the basin of the level a PnP start begins at
+        start_level = None
+        if views.input_frame is not None and self.config.tracker.feature_start_level >= 0:
+            start_level = self.config.tracker.feature_start_level
+
         def align(start: torch.Tensor, every_level: bool = False) -> TrackResult:
             return self.tracker.track(ref.view, ref.code, frame.gray, frame.camera, start,
                                       self._affine_guess(ref), valid=frame.valid, reprojection=term,
                                       min_feature_inliers=fcfg.min_inliers if term is not None else 0,
                                       feature_threshold=fcfg.pnp_threshold,
                                       T_kf_prior=T_kf_guess if len(self._records) >= 2 else None,
-                                      prior_dt=self._since_tracked(frame), every_level=every_level)
+                                      prior_dt=self._since_tracked(frame), every_level=every_level,
+                                      start_level=start_level)
 
         with self._aligning_threads():
             track = align(init)
@@ -458,6 +484,7 @@ class CodeSLAM:
         views, ref, sparse, pos = last
         if pos != len(self._records) - 1 or ref is not self.ref or self._records[pos].keyframe_id != ref.id:
             return False
+        views = self._with_features(views)  # a keyframe's keypoints are the map's
         rec, res = self._records[pos], self._results[pos]
         T_wc = ref.T_wc @ rec.T_kf
         if res.keyframe is not None:
@@ -502,6 +529,7 @@ class CodeSLAM:
     def _lost_frame(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor,
                     track: TrackResult | None, reason: str, rolled_back: str = "") -> FrameResult:
         """The motion model's pose, flagged; after ``recovery.lost_frames`` such frames a new map segment."""
+        views = self._with_features(views)
         self._lost += 1
         self._matches = None
         if self._lost > self.config.recovery.lost_frames and self._can_anchor(views):
@@ -528,6 +556,7 @@ class CodeSLAM:
                  status: str, reason: str, rolled_back: str) -> FrameResult:
         """Empty the window (its keyframes stay in the map for relocalisation and output) and make this frame the
         first keyframe of a new window at ``T_wc``, its pose the new gauge."""
+        views = self._with_features(views)
         self._apply(self.mapper.wait())
         self._undo, self._matches, self._lost = None, None, 0
         with self.clock("decode"):
@@ -610,6 +639,7 @@ class CodeSLAM:
         return kid
 
     def _start_map(self, views: _Views) -> FrameResult:
+        views = self._with_features(views)
         if not bool(torch.isfinite(views.frame.image).all()):
             raise CodeSLAMError(f"frame {views.frame.index} (the first) has non-finite pixels; cannot start the map")
         with self.clock("decode"):
@@ -629,14 +659,15 @@ class CodeSLAM:
             raise CodeSLAMError(f"frame {frame.index}: timestamp {frame.timestamp} does not increase "
                                 f"(previous {self._records[-1].timestamp})")
 
-    def _views(self, frame: Frame) -> _Views:
-        """The frame in the network's camera and its keypoints in the feature camera (both resampled from the
-        input frame, so keypoints see its full resolution)."""
+    def _views(self, frame: Frame, features: bool = True) -> _Views:
+        """The frame in the network's camera and, with ``features``, its keypoints in the feature camera (both
+        resampled from the input frame, so keypoints see its full resolution); without, the input frame is kept
+        for :meth:`_with_features`."""
         if self.camera is None:
             self.camera = frame.camera
         with self.clock("resample"):  # the depth is resampled for keyframes only (_keyframe_frame)
             net = resample_frame(dataclasses.replace(frame, depth=None), self.camera)
-        features = None
+        keypoints, kept = None, None
         if self.config.features.enabled:
             if self.sparse is None:
                 fcfg = self.config.features
@@ -644,13 +675,43 @@ class CodeSLAM:
                 self.mapper.sparse = self.sparse
                 self.window.sparse = SparseSettings(self.sparse.camera, fcfg.sigma,
                                                     self.sparse.extract.orb.getScaleFactor())
-            with self.clock("features"):
-                features = self.sparse.features_of(frame)
-        raw = (net, features, frame.camera, frame.depth)
+            if features:
+                with self.clock("features"):
+                    keypoints = self.sparse.features_of(frame)
+            else:
+                kept = frame
+        raw = (net, keypoints, frame.camera, frame.depth)
         if self.readout <= 0:
-            return _Views(net, features, raw)
+            return _Views(net, keypoints, raw, input_frame=kept)
         with self.clock("resample"):
-            return self._rectified_views(raw, self._readout_rotation(self._last_motion()))
+            return self._rectified_views(raw, self._readout_rotation(self._last_motion()), kept)
+
+    def _with_features(self, views: _Views) -> _Views:
+        """``views`` with the keypoints of a frame whose extraction was put off (FeatureConfig.direct_first_deg),
+        rectified as its image was; ``views`` itself when they are there or not wanted."""
+        if views.input_frame is None:
+            return views
+        with self.clock("features"):
+            keypoints = self.sparse.features_of(views.input_frame)
+        net, _, sensor, depth = views.raw
+        return _Views(views.frame, self._rectified_features(keypoints, sensor, views.readout),
+                      (net, keypoints, sensor, depth), views.readout)
+
+    def _direct_first(self) -> bool:
+        """Whether this frame is aligned from the motion model's prediction before any keypoints are extracted:
+        keypoints on demand, the last frame tracked and its prediction within ``features.direct_first_deg``."""
+        fcfg = self.config.features
+        return (fcfg.enabled and fcfg.direct_first_deg > 0 and bool(self._records) and self._records[-1].ok
+                and self._lost == 0 and self._prediction_error <= fcfg.direct_first_deg)
+
+    @staticmethod
+    def _deviation(T_pred: torch.Tensor, T_kf: torch.Tensor, ref: MapKeyframe) -> float:
+        """How far a tracked pose ``T_kf`` lies from its prediction ``T_pred`` (both in ``ref``), in degrees: the
+        rotation between them plus their translation's distance over the keyframe's median depth (radians of
+        parallax), scale-free as the keyframe decision's baseline ratio."""
+        D = se3_inverse(T_pred.to(torch.float64)) @ T_kf.to(torch.float64)
+        ratio, rot = motion_since_keyframe(D, ref.median_depth())
+        return rot + math.degrees(ratio)
 
     def _rerectified(self, views: _Views, turn: torch.Tensor | None) -> _Views:
         """A new keyframe's views rectified again with ``turn``, its tracked rotation from the last frame, instead
@@ -705,17 +766,23 @@ class CodeSLAM:
             self.readout = self.readout_choice.value
 
     def _rectified_views(self, raw: tuple[Frame, Features | None, PinholeCamera, torch.Tensor | None],
-                         readout: torch.Tensor | None) -> _Views:
+                         readout: torch.Tensor | None, input_frame: Frame | None = None) -> _Views:
         """The views of ``raw`` (the frame in the network's camera, its keypoints, the input camera whose rows were
         read out, the input's depth) rectified by the readout rotation ``readout`` (as they are for None); they
-        keep ``raw``."""
+        keep ``raw`` (and ``input_frame``, the frame whose keypoints were put off)."""
         net, features, sensor, _ = raw
         if readout is None:
-            return _Views(net, features, raw)
-        if features is not None and len(features) > 0:
-            uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, sensor, readout)
-            features = dataclasses.replace(features, uv=uv.numpy())
-        return _Views(_rectified(net, sensor, readout), features, raw, readout)
+            return _Views(net, features, raw, input_frame=input_frame)
+        return _Views(_rectified(net, sensor, readout), self._rectified_features(features, sensor, readout), raw,
+                      readout, input_frame)
+
+    def _rectified_features(self, features: Features | None, sensor: PinholeCamera,
+                            readout: torch.Tensor | None) -> Features | None:
+        """Keypoints found in the input frame moved as its image is rectified by ``readout`` (None: not)."""
+        if readout is None or features is None or len(features) == 0:
+            return features
+        uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, sensor, readout)
+        return dataclasses.replace(features, uv=uv.numpy())
 
     @staticmethod
     def _keyframe_frame(views: _Views) -> Frame:

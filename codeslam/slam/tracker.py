@@ -138,6 +138,7 @@ class PhotometricTracker:
         T_kf_prior: torch.Tensor | None = None,
         prior_dt: float | None = None,
         every_level: bool = False,
+        start_level: int | None = None,
     ) -> TrackResult:
         """Align ``image`` ((1, H, W) grey or (3, H, W) RGB, seen by ``camera``) to ``keyframe`` (with decoder)
         whose depth is decoded at ``code`` (C,), starting from ``T_kf_init`` (4, 4) and ``affine_init`` (2,).
@@ -148,7 +149,8 @@ class PhotometricTracker:
         ``cfg.feature_start_level``.
         ``T_kf_prior``: the motion model's prediction of the pose, a soft prior on it (``prior_dt`` seconds since
         the last frame; see ``TrackerConfig.motion_prior_acceleration``). ``every_level``: visit all
-        ``cfg.pyramid_levels`` even with the matches (``T_kf_init`` did not come from them)."""
+        ``cfg.pyramid_levels`` even with the matches (``T_kf_init`` did not come from them). ``start_level``: skip
+        the levels coarser than this one (``T_kf_init`` lies within its basin by other evidence)."""
         cfg = self.cfg
         ref = keyframe.decoder.levels[0].jac
         dtype, device = ref.dtype, ref.device
@@ -170,8 +172,10 @@ class PhotometricTracker:
         levels = list(zip(cfg.pyramid_levels, cfg.max_iterations))
         started_by_features = (reprojection is not None and min_feature_inliers > 0 and not every_level
                                and len(reprojection) >= min_feature_inliers)
-        if started_by_features and cfg.feature_start_level >= 0:  # within the fine levels' basin already
-            levels = [(lvl, it) for lvl, it in levels if lvl <= cfg.feature_start_level]
+        if start_level is None and started_by_features and cfg.feature_start_level >= 0:
+            start_level = cfg.feature_start_level  # within the fine levels' basin already
+        if start_level is not None:
+            levels = [(lvl, it) for lvl, it in levels if lvl <= start_level]
         align = self._align_dedicated if self.solver == "dedicated" else self._align_generic
         state, cost, valid_px, r, sigma, gray_A, iterations, kp = align(keyframe, code, image, camera, valid, state,
                                                                         layout, terms, levels)
