@@ -197,15 +197,24 @@ class FeatureConfig:
     kept 12 of the 41; the cost from the prediction is lower (5607 in a run that took it). Where the two starts
     were both aligned on every frame (TUM fr1/rpy, the generator corridor at 320x240, 1 thread), they reached
     the same cost within 2% on all 288 frames, so the retry changes nothing where PnP is right."""
-    direct_first_deg: float = 0.0
-    """Keypoints on demand (0: every frame's, as before): a frame is aligned photometrically from the motion model's
-    prediction alone, without ORB keypoints, when the last frame's tracked pose lay within this many degrees of
-    its own prediction (its rotation error plus its translation error over the keyframe's median depth, in
-    radians, as degrees: the prediction's error in the image, scale-free). That alignment starts at
-    ``tracker.feature_start_level``, as a PnP start does. The keypoints are extracted when it fails or moves the
-    pose more than twice this from the prediction (then the frame is tracked as any other, from PnP), when the
-    frame becomes a keyframe (its keypoints are the map's), and for every frame after one whose prediction missed.
-    DSO's tracker never extracts keypoints; ORB + PnP widen the basin where the motion model is off."""
+    direct_first: str = "parallel"
+    """Keypoints on demand: "never" (every frame's keypoints, as before), "parallel" (in the parallel mode only) or
+    "always". A frame is then aligned photometrically from the motion model's prediction alone, without ORB
+    keypoints, when the last frame's tracked pose lay within ``direct_first_deg`` of its own prediction (its
+    rotation error plus its translation error over the keyframe's median depth, in radians, as degrees: the
+    prediction's error in the image, scale-free), starting at ``tracker.feature_start_level`` as a PnP start does.
+    The keypoints are extracted when that alignment fails or moves the pose more than twice ``direct_first_deg``
+    from the prediction (then the frame is tracked as any other, from PnP), when the frame becomes a keyframe
+    (its keypoints are the map's), and for every frame after one whose prediction missed. DSO's tracker never
+    extracts keypoints; ORB + PnP widen the basin where the motion model is off, and their 512x384 keypoints add
+    precision where the photometric term has little texture. Measured (docs/results/slam_table.md, thirty-sixth
+    session): parallel mode (``--parallel --threads 2``, four rounds alternating) TUM fr1/rpy 0.83-0.99x the wall
+    time (6.3-8.4 -> 7.5-10.6 frames/s), its maps 0.0123-0.0151 m and 1.37-1.43 deg against 0.0136-0.0216 m and
+    1.31-1.81 deg, the hand-held preset 0.83x (0.087 -> 0.069 m), the HoloLens walk and the fast turn within their
+    spread; sequential (``--threads 1``, the suite) the fast turn's orientation 0.45 -> 1.48 deg and TUM 0.0099 ->
+    0.0114 m, so the sequential mode keeps every frame's keypoints by default."""
+    direct_first_deg: float = 1.0
+    """How close to its prediction the last frame must have been for keypoints to be put off (``direct_first``)."""
 
     def __post_init__(self) -> None:
         if self.scale < 1:
@@ -219,8 +228,11 @@ class FeatureConfig:
         for name in ("guided_radius", "pnp_threshold", "sigma"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"features.{name} must be positive, got {getattr(self, name)}")
-        if not self.direct_first_deg >= 0:
-            raise ConfigError(f"features.direct_first_deg must be >= 0, got {self.direct_first_deg}")
+        if self.direct_first not in ("never", "parallel", "always"):
+            raise ConfigError(f"features.direct_first must be 'never', 'parallel' or 'always', got "
+                              f"{self.direct_first!r}")
+        if not self.direct_first_deg > 0:
+            raise ConfigError(f"features.direct_first_deg must be > 0, got {self.direct_first_deg}")
         if not self.weight >= 0 or not 0 <= self.max_hamming <= 256 or not 0 <= self.fast_threshold <= 255:
             raise ConfigError("features.weight must be >= 0, max_hamming in [0, 256], fast_threshold in [0, 255]")
         for name in ("min_agreement", "retry_agreement"):

@@ -15,8 +15,9 @@ map within seconds):
 * **Tracking** starts from ORB matches and PnP on the keyframe's decoded depth (:mod:`codeslam.slam.frontend`)
   instead of the motion model alone, and the matches stay in the photometric alignment as reprojection
   residuals (DeepFactors' sparse factors). A frame is tracked when the photometric checks pass or enough
-  matches agree with the final pose. With ``features.direct_first_deg`` the keypoints are extracted on demand:
-  a frame whose motion the motion model predicted well is aligned from the prediction alone, as DSO does.
+  matches agree with the final pose. In the parallel mode the keypoints are extracted on demand
+  (``features.direct_first``): a frame whose motion the motion model predicted well is aligned from the
+  prediction alone, as DSO does.
 * **Mapping** keeps its map: a window solve that fails :meth:`SlidingWindow.check`, or after which the next
   frame cannot be tracked while it can against the map before the solve, is rolled back.
 * **Recovery**: a frame that fails is relocalised against the window's and older keyframes (ORB + PnP); after
@@ -88,7 +89,7 @@ class FrameResult:
         reason: why tracking failed, or why the frame became a keyframe (baseline, rotation, overlap, first
             frame, relocalised, new segment).
         segment: the map segment (0 until tracking is lost long enough to start a new one).
-        source: what the pose rests on: 'direct' (photometric only; with ``features.direct_first_deg``, a
+        source: what the pose rests on: 'direct' (photometric only; with ``features.direct_first``, a
             frame aligned from the motion model's prediction without keypoints), 'direct+features', 'features'
             (PnP only), 'motion model'.
         track: tracking statistics (None for the first frame). keyframe: the keyframe decision (None when not
@@ -238,6 +239,9 @@ class CodeSLAM:
         self._last_tracked: tuple | None = None  # (views, ref, sparse, record position) of a tracked non-keyframe
         self._lost = 0  # consecutive frames whose pose is only predicted
         self._prediction_error = math.inf  # the last frame's tracked pose from its prediction (_deviation)
+        fcfg = config.features  # keypoints on demand (FeatureConfig.direct_first): the degrees, or 0 (never)
+        on_demand = fcfg.enabled and (fcfg.direct_first == "always" or (fcfg.direct_first == "parallel" and parallel))
+        self._direct_first_deg = fcfg.direct_first_deg if on_demand else 0.0
         self._undo: MappingResult | None = None  # the last window solve, to undo it (sequential mode)
         self._next_id = 0
         tcfg = config.tracker
@@ -316,14 +320,14 @@ class CodeSLAM:
         with self.clock("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
             track, sparse, source = self._track(views, ref, T_kf_guess)
         if direct_first and not (track.ok and self._deviation(T_kf_guess, track.T_kf, ref)
-                                 <= 2.0 * self.config.features.direct_first_deg):
+                                 <= 2.0 * self._direct_first_deg):
             # The prediction's basin did not hold (the alignment failed, or moved the pose further than a held
             # prediction is off: on the generator's fast turn, 7 deg from the prediction, the alignment from level 1
             # stopped 3.7 deg short and passed its checks): keypoints and PnP, as every frame without the setting.
             views = self._with_features(views)
             with self.clock("track"):
                 track, sparse, source = self._track(views, ref, T_kf_guess)
-        # how far the motion model was off (FeatureConfig.direct_first_deg); any later retry below: unknown
+        # how far the motion model was off (FeatureConfig.direct_first); any later retry below: unknown
         self._prediction_error = self._deviation(T_kf_guess, track.T_kf, ref) if track.ok else math.inf
         rolled_back = ""
         if not track.ok and self._undo is not None:  # the last window solve may have broken the map
@@ -433,7 +437,7 @@ class CodeSLAM:
                     term = self.sparse.term(ref.sparse, views.features, sparse, self.dtype, self.device)
         frame = views.frame
 
-        # keypoints put off (FeatureConfig.direct_first_deg): the last prediction held within a degree or so, inside
+        # keypoints put off (FeatureConfig.direct_first): the last prediction held within a degree or so, inside
         # the basin of the level a PnP start begins at
         start_level = None
         if views.input_frame is not None and self.config.tracker.feature_start_level >= 0:
@@ -687,11 +691,11 @@ class CodeSLAM:
             return self._rectified_views(raw, self._readout_rotation(self._last_motion()), kept)
 
     def _with_features(self, views: _Views) -> _Views:
-        """``views`` with the keypoints of a frame whose extraction was put off (FeatureConfig.direct_first_deg),
+        """``views`` with the keypoints of a frame whose extraction was put off (FeatureConfig.direct_first),
         rectified as its image was; ``views`` itself when they are there or not wanted."""
         if views.input_frame is None:
             return views
-        with self.clock("features"):
+        with self._aligning_threads(), self.clock("features"):  # as in _views
             keypoints = self.sparse.features_of(views.input_frame)
         net, _, sensor, depth = views.raw
         return _Views(views.frame, self._rectified_features(keypoints, sensor, views.readout),
@@ -700,9 +704,8 @@ class CodeSLAM:
     def _direct_first(self) -> bool:
         """Whether this frame is aligned from the motion model's prediction before any keypoints are extracted:
         keypoints on demand, the last frame tracked and its prediction within ``features.direct_first_deg``."""
-        fcfg = self.config.features
-        return (fcfg.enabled and fcfg.direct_first_deg > 0 and bool(self._records) and self._records[-1].ok
-                and self._lost == 0 and self._prediction_error <= fcfg.direct_first_deg)
+        return (self._direct_first_deg > 0 and bool(self._records) and self._records[-1].ok and self._lost == 0
+                and self._prediction_error <= self._direct_first_deg)
 
     @staticmethod
     def _deviation(T_pred: torch.Tensor, T_kf: torch.Tensor, ref: MapKeyframe) -> float:

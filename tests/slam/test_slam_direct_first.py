@@ -1,8 +1,9 @@
-"""Keypoints on demand (``features.direct_first_deg``): a frame whose motion the motion model predicted well is
-aligned photometrically from that prediction alone, and ORB + PnP run only when that alignment fails, when the
-frame becomes a keyframe, or after a frame the prediction missed. Checked on the generator's walk preset at 160x120
-with the stand-in depth: the frames tracked that way, the keyframes' keypoints, the accuracy beside the
-every-frame run, and a jump the prediction cannot follow."""
+"""Keypoints on demand (``features.direct_first``, the parallel mode's default): a frame whose motion the motion
+model predicted well is aligned photometrically from that prediction alone, and ORB + PnP run only when that
+alignment fails, when the frame becomes a keyframe, or after a frame the prediction missed. Checked on the
+generator's walk and fast-turn presets at 160x120 with the stand-in depth: the frames tracked that way, the
+keyframes' keypoints, the accuracy beside the every-frame run, a turn the prediction cannot follow, and which
+mode does it by default."""
 
 from __future__ import annotations
 
@@ -23,15 +24,18 @@ from codeslam.slam.pipeline import ground_truth, run_slam
 from codeslam.slam.system import CodeSLAM
 
 
-def _config(direct_first_deg: float) -> SLAMConfig:
+def _config(direct_first: str) -> SLAMConfig:
     base = SLAMConfig()
-    return dataclasses.replace(base, features=dataclasses.replace(base.features, direct_first_deg=direct_first_deg))
+    return dataclasses.replace(base, features=dataclasses.replace(base.features, direct_first=direct_first))
 
 
-def _run(frames, direct_first_deg: float):
+def _run(frames, direct_first: str, parallel: bool = False):
     seq = MemorySequence(frames)
-    system = CodeSLAM(_config(direct_first_deg), standin_depth_model())
-    run = run_slam(seq, system, frames[0].camera)
+    system = CodeSLAM(_config(direct_first), standin_depth_model(), parallel=parallel)
+    try:
+        run = run_slam(seq, system, frames[0].camera)
+    finally:
+        system.close()
     return run, system
 
 
@@ -46,8 +50,8 @@ def walk():
 
 def test_frames_the_prediction_holds_skip_their_keypoints_and_track_as_well(walk):
     frames, gt, path = walk
-    every, _ = _run(frames, 0.0)
-    demand, system = _run(frames, 1.0)
+    every, _ = _run(frames, "never")
+    demand, system = _run(frames, "always")
     ev_every, ev_demand = evaluate_run(every.trajectory, gt), evaluate_run(demand.trajectory, gt)
     print(f"path {path:.3f} m; every frame: ATE Sim(3) {ev_every['ate_sim3_rmse']:.4f} m, "
           f"{ev_every['rot_aligned_rmse_deg']:.3f} deg; on demand: {ev_demand['ate_sim3_rmse']:.4f} m, "
@@ -71,7 +75,7 @@ def test_a_turn_the_prediction_cannot_follow_is_tracked_from_the_keypoints():
     how far the alignment moved the pose sends the frame to ORB + PnP."""
     frames = preset_frames(21, 32, "fast-turn", 30.0)
     kept = frames[:16] + frames[20:]
-    run, _ = _run(kept, 1.0)
+    run, _ = _run(kept, "always")
     res = run.results
     jump = 16
     assert res[jump].index == 20
@@ -85,6 +89,17 @@ def test_a_turn_the_prediction_cannot_follow_is_tracked_from_the_keypoints():
     assert all(r.tracking_ok for r in res)
 
 
-def test_the_setting_is_checked():
+def test_the_parallel_mode_puts_keypoints_off_by_default_and_the_sequential_mode_does_not(walk):
+    frames = walk[0][:12]
+    sequential, _ = _run(frames, SLAMConfig().features.direct_first)
+    parallel, _ = _run(frames, SLAMConfig().features.direct_first, parallel=True)
+    assert all(r.source != "direct" for r in sequential.results[1:])
+    assert sum(r.source == "direct" for r in parallel.results) >= 4
+    assert all(r.tracking_ok for r in parallel.results)
+
+
+def test_the_settings_are_checked():
     with pytest.raises(ConfigError, match="direct_first_deg"):
-        FeatureConfig(direct_first_deg=-1.0)
+        FeatureConfig(direct_first_deg=0.0)
+    with pytest.raises(ConfigError, match="direct_first must be"):
+        FeatureConfig(direct_first="sometimes")

@@ -148,9 +148,9 @@ def test_each_frames_own_work_runs_on_the_alignment_thread_count_and_the_mapping
 
             views = system._views
 
-            def preparing(frame, views=views, prepared=prepared):
+            def preparing(frame, views=views, prepared=prepared, **kwargs):
                 prepared.add(torch.get_num_threads())
-                return views(frame)
+                return views(frame, **kwargs)
 
             system.tracker.track = counting
             system._views = preparing
