@@ -208,10 +208,10 @@ class FeatureConfig:
     (its keypoints are the map's), and for every frame after one whose prediction missed. DSO's tracker never
     extracts keypoints; ORB + PnP widen the basin where the motion model is off, and their 512x384 keypoints add
     precision where the photometric term has little texture. Measured (docs/results/slam_table.md, thirty-sixth
-    session): parallel mode (``--parallel --threads 2``, four rounds alternating) TUM fr1/rpy 0.83-0.99x the wall
-    time (6.3-8.4 -> 7.5-10.6 frames/s), its maps 0.0123-0.0151 m and 1.37-1.43 deg against 0.0136-0.0216 m and
-    1.31-1.81 deg, the hand-held preset 0.83x (0.087 -> 0.069 m), the HoloLens walk and the fast turn within their
-    spread; sequential (``--threads 1``, the suite) the fast turn's orientation 0.45 -> 1.48 deg and TUM 0.0099 ->
+    session): parallel mode (``--parallel --threads 2``, eight rounds alternating) TUM fr1/rpy 0.83-1.01x the wall
+    time (median 0.89x; one bench_slam run 1.10x), its maps 0.012-0.019 m and 1.37-1.50 deg against 0.013-0.022 m
+    and 1.31-1.81 deg, the hand-held preset 0.83x (0.087 -> 0.069 m), the HoloLens walk and the fast turn within
+    their spread; sequential (``--threads 1``, the suite) the fast turn's orientation 0.45 -> 1.48 deg and TUM 0.0099 ->
     0.0114 m, so the sequential mode keeps every frame's keypoints by default."""
     direct_first_deg: float = 1.0
     """How close to its prediction the last frame must have been for keypoints to be put off (``direct_first``)."""
