@@ -327,8 +327,8 @@ class CodeSLAM:
             views = self._with_features(views)
             with self.clock("track"):
                 track, sparse, source = self._track(views, ref, T_kf_guess)
-        # how far the motion model was off (FeatureConfig.direct_first); any later retry below: unknown
-        self._prediction_error = self._deviation(T_kf_guess, track.T_kf, ref) if track.ok else math.inf
+        if self._direct_first_deg > 0:  # how far the motion model was off; after any retry below: unknown
+            self._prediction_error = self._deviation(T_kf_guess, track.T_kf, ref) if track.ok else math.inf
         rolled_back = ""
         if not track.ok and self._undo is not None:  # the last window solve may have broken the map
             rolled_back = self._roll_back(f"frame {frame.index} failed after it: {track.reason}")
