@@ -319,16 +319,16 @@ class CodeSLAM:
             return self._lost_frame(views, ref, T_kf_guess, None, "non-finite pixels in the image")
         with self.clock("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
             track, sparse, source = self._track(views, ref, T_kf_guess)
-        if direct_first and not (track.ok and self._deviation(T_kf_guess, track.T_kf, ref)
-                                 <= 2.0 * self._direct_first_deg):
+        deviation = self._deviation(T_kf_guess, track, ref)
+        if direct_first and not deviation <= 2.0 * self._direct_first_deg:  # (NaN: not held either)
             # The prediction's basin did not hold (the alignment failed, or moved the pose further than a held
             # prediction is off: on the generator's fast turn, 7 deg from the prediction, the alignment from level 1
             # stopped 3.7 deg short and passed its checks): keypoints and PnP, as every frame without the setting.
             views = self._with_features(views)
             with self.clock("track"):
                 track, sparse, source = self._track(views, ref, T_kf_guess)
-        if self._direct_first_deg > 0:  # how far the motion model was off; after any retry below: unknown
-            self._prediction_error = self._deviation(T_kf_guess, track.T_kf, ref) if track.ok else math.inf
+            deviation = self._deviation(T_kf_guess, track, ref)
+        self._prediction_error = deviation  # after any retry below: unknown (this frame's first track failed)
         rolled_back = ""
         if not track.ok and self._undo is not None:  # the last window solve may have broken the map
             rolled_back = self._roll_back(f"frame {frame.index} failed after it: {track.reason}")
@@ -533,7 +533,6 @@ class CodeSLAM:
     def _lost_frame(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor,
                     track: TrackResult | None, reason: str, rolled_back: str = "") -> FrameResult:
         """The motion model's pose, flagged; after ``recovery.lost_frames`` such frames a new map segment."""
-        views = self._with_features(views)
         self._lost += 1
         self._matches = None
         if self._lost > self.config.recovery.lost_frames and self._can_anchor(views):
@@ -560,7 +559,6 @@ class CodeSLAM:
                  status: str, reason: str, rolled_back: str) -> FrameResult:
         """Empty the window (its keyframes stay in the map for relocalisation and output) and make this frame the
         first keyframe of a new window at ``T_wc``, its pose the new gauge."""
-        views = self._with_features(views)
         self._apply(self.mapper.wait())
         self._undo, self._matches, self._lost = None, None, 0
         with self.clock("decode"):
@@ -643,7 +641,6 @@ class CodeSLAM:
         return kid
 
     def _start_map(self, views: _Views) -> FrameResult:
-        views = self._with_features(views)
         if not bool(torch.isfinite(views.frame.image).all()):
             raise CodeSLAMError(f"frame {views.frame.index} (the first) has non-finite pixels; cannot start the map")
         with self.clock("decode"):
@@ -707,12 +704,14 @@ class CodeSLAM:
         return (self._direct_first_deg > 0 and bool(self._records) and self._records[-1].ok and self._lost == 0
                 and self._prediction_error <= self._direct_first_deg)
 
-    @staticmethod
-    def _deviation(T_pred: torch.Tensor, T_kf: torch.Tensor, ref: MapKeyframe) -> float:
-        """How far a tracked pose ``T_kf`` lies from its prediction ``T_pred`` (both in ``ref``), in degrees: the
-        rotation between them plus their translation's distance over the keyframe's median depth (radians of
-        parallax), scale-free as the keyframe decision's baseline ratio."""
-        D = se3_inverse(T_pred.to(torch.float64)) @ T_kf.to(torch.float64)
+    def _deviation(self, T_pred: torch.Tensor, track: TrackResult, ref: MapKeyframe) -> float:
+        """How far a tracked pose ``track.T_kf`` lies from its prediction ``T_pred`` (both in ``ref``), in degrees:
+        the rotation between them plus their translation's distance over the keyframe's median depth (radians of
+        parallax), scale-free as the keyframe decision's baseline ratio. Infinite for a failed track, and without
+        keypoints on demand (nothing reads it then, and the median depth decodes the keyframe's depth)."""
+        if not track.ok or self._direct_first_deg <= 0:
+            return math.inf
+        D = se3_inverse(T_pred.to(torch.float64)) @ track.T_kf.to(torch.float64)
         ratio, rot = motion_since_keyframe(D, ref.median_depth())
         return rot + math.degrees(ratio)
 
