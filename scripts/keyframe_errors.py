@@ -1,13 +1,17 @@
 """Is a SLAM run's error the map's or the tracked frames'? ATE after Sim(3) alignment over all frames and over
 the keyframes alone, and each step between consecutive keyframes: the true translation (the keyframes'
-baseline), the estimated one and their difference, beside the rotation error of the step.
+baseline), the estimated one and their difference, beside the rotation error of the step. Then each keyframe's
+pose in the keyframe it was tracked against, as the tracker gave it (``keyframes.npz``: ``tracked_from``,
+``T_tracked``) and as the final map has it, against the truth: the rotation error and the angle between the
+estimated and the true translation's direction (both scale-free). Where the final map is no better than the
+tracker, the window did not correct it (e.g. solves cut short in the parallel mode).
 
     python scripts/keyframe_errors.py RUN_DIR [--steps]
 
-RUN_DIR is a `codeslam slam --out` folder with ground truth (trajectory.txt, groundtruth.txt, frames.csv). The
-keyframe steps are compared before any alignment (each in its first keyframe's camera), so with the network's
-depth their translations carry the map's scale; read them with the dataset's depth (``--depth-model standin``),
-whose scale is the truth's.
+RUN_DIR is a `codeslam slam --out` folder with ground truth (trajectory.txt, groundtruth.txt, frames.csv,
+keyframes.npz). The keyframe steps are compared before any alignment (each in its first keyframe's camera), so
+with the network's depth their translations carry the map's scale; read them with the dataset's depth
+(``--depth-model standin``), whose scale is the truth's.
 """
 
 from __future__ import annotations
@@ -52,6 +56,64 @@ def main() -> None:
         for n, (a, b) in enumerate(zip(kf[:-1], kf[1:])):
             print(f"frames {rows[i_est[a]]['frame']:>4} -> {rows[i_est[b]]['frame']:>4}: true {1e3 * t_true[n]:6.1f} "
                   f"mm, estimated {1e3 * t_est[n]:6.1f} mm, error {1e3 * t_err[n]:6.1f} mm, rotation {rot[n]:.2f} deg")
+    npz = args.run / "keyframes.npz"
+    if npz.is_file():
+        with np.load(npz, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        tracked_errors(arrays, ref, args.steps)
+
+
+def direction_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(K, 3), (K, 3) -> (K,) angle in degrees between each pair of vectors (NaN where either is zero)."""
+    na, nb = np.linalg.norm(a, axis=1), np.linalg.norm(b, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        c = np.einsum("ki,ki->k", a, b) / (na * nb)
+    return np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+
+
+def tracked_errors(kf: dict[str, np.ndarray], ref: Trajectory, steps: bool = False) -> dict[str, np.ndarray] | None:
+    """Each keyframe's pose in the keyframe it was tracked against, tracked and final, against the truth (module
+    docstring); prints medians (and every keyframe with ``steps``) and returns the per-keyframe arrays (frame,
+    reference frame, tracked and final rotation error, tracked and final translation direction error, degrees),
+    or None when the file predates the tracked poses or no keyframe has one."""
+    if "tracked_from" not in kf or "T_tracked" not in kf:
+        print("keyframes.npz holds no tracked poses (written before they were kept)")
+        return None
+    pos = {int(i): n for n, i in enumerate(kf["id"])}
+    est = Trajectory(kf["timestamp"], kf["T_wc"])
+    i_est, i_ref = match_trajectories(est, ref, min_matches=1)
+    truth = dict(zip(i_est.tolist(), ref.poses.detach().cpu().numpy()[i_ref].astype(np.float64)))
+    rows = []
+    for n, r in enumerate(kf["tracked_from"]):
+        m = pos.get(int(r))
+        if m is None or n not in truth or m not in truth or not np.isfinite(kf["T_tracked"][n]).all():
+            continue
+        true_rel = np.linalg.inv(truth[m]) @ truth[n]
+        final_rel = np.linalg.inv(kf["T_wc"][m]) @ kf["T_wc"][n]
+        rows.append((kf["frame_index"][n], kf["frame_index"][m], true_rel, kf["T_tracked"][n], final_rel))
+    if not rows:
+        print("no keyframe has a tracked pose with ground truth for it and its reference")
+        return None
+    true_rel, tracked, final = (np.stack([r[i] for r in rows]) for i in (2, 3, 4))
+    out = {
+        "frame": np.array([r[0] for r in rows]), "reference": np.array([r[1] for r in rows]),
+        "tracked_rotation": np.degrees(rotation_angle(np.swapaxes(true_rel[:, :3, :3], 1, 2) @ tracked[:, :3, :3])),
+        "final_rotation": np.degrees(rotation_angle(np.swapaxes(true_rel[:, :3, :3], 1, 2) @ final[:, :3, :3])),
+        "tracked_direction": direction_angle(tracked[:, :3, 3], true_rel[:, :3, 3]),
+        "final_direction": direction_angle(final[:, :3, 3], true_rel[:, :3, 3]),
+    }
+    gap = out["frame"] - out["reference"]
+    print(f"keyframes in their tracking reference ({len(rows)}, median {np.median(gap):.0f} frames apart): rotation "
+          f"error median {np.median(out['tracked_rotation']):.2f} deg tracked, "
+          f"{np.median(out['final_rotation']):.2f} deg in the final map; translation direction error median "
+          f"{np.nanmedian(out['tracked_direction']):.1f} deg tracked, {np.nanmedian(out['final_direction']):.1f} "
+          f"deg in the final map")
+    if steps:
+        for n in range(len(rows)):
+            print(f"frame {out['frame'][n]:>4} in {out['reference'][n]:>4}: rotation {out['tracked_rotation'][n]:.2f}"
+                  f" -> {out['final_rotation'][n]:.2f} deg, direction {out['tracked_direction'][n]:.1f} -> "
+                  f"{out['final_direction'][n]:.1f} deg")
+    return out
 
 
 if __name__ == "__main__":

@@ -9,7 +9,9 @@ Outputs of :func:`write_outputs` (all written atomically):
   the whole run (``trajectory_smoothing``, :mod:`codeslam.slam.smoothing`; 0 writes them as placed by the keyframes
   and tracking);
 * ``keyframes.txt``: the keyframes' final poses, TUM format; ``keyframes.npz``: their ids, frame indices,
-  timestamps, poses, codes, final depth maps, images and camera (for reconstruction);
+  timestamps, poses, codes, final depth maps, images and camera (for reconstruction), and each keyframe's pose as
+  the tracker gave it in the keyframe it was tracked against, before any window solve (``tracked_from``,
+  ``T_tracked``);
 * ``map.ply``: the keyframes' depths fused into one coloured point cloud (bilateral-filtered, slanted elements
   dropped, as the paper's Fig. 8; :func:`codeslam.recon.fuse`);
 * ``result.json``: counts, timings, frames per second and, with ground truth, the metrics;
@@ -60,6 +62,8 @@ class SLAMRun:
         process_s: wall time inside the system; wall_s: of the whole loop (reading and resampling included).
         readout: the online choice of the rolling-shutter readout and its evidence (None: not estimated).
         trajectory_smoothing: the time scale (s) of the spline that smoothed ``trajectory``'s positions (0: none).
+        keyframe_tracking: per keyframe, the keyframe it was tracked against and the tracked pose in it
+            (:meth:`~codeslam.slam.system.CodeSLAM.keyframe_tracking`).
     """
 
     results: list[FrameResult]
@@ -72,6 +76,7 @@ class SLAMRun:
     wall_s: float = 0.0
     readout: dict | None = None
     trajectory_smoothing: float = 0.0
+    keyframe_tracking: list[tuple[int, torch.Tensor | None]] = field(default_factory=list)
 
     @property
     def fps(self) -> float:
@@ -129,7 +134,7 @@ def run_slam(
         results=results, trajectory=system.trajectory(), keyframe_trajectory=system.keyframe_trajectory(),
         keyframes=list(system.keyframes), camera=camera, timings_ms=totals, process_s=process_s,
         wall_s=time.perf_counter() - t_start, readout=system.readout_summary(),
-        trajectory_smoothing=float(system.config.trajectory_smoothing),
+        trajectory_smoothing=float(system.config.trajectory_smoothing), keyframe_tracking=system.keyframe_tracking(),
     )
 
 
@@ -358,8 +363,10 @@ def fuse_keyframes(keyframes: list[MapKeyframe], camera: PinholeCamera):
                  for k in keyframes])
 
 
-def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: PinholeCamera) -> None:
-    """The keyframes for reconstruction as a compressed .npz (arrays only, no pickled objects)."""
+def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: PinholeCamera,
+                    tracking: list[tuple[int, torch.Tensor | None]] | None = None) -> None:
+    """The keyframes for reconstruction as a compressed .npz (arrays only, no pickled objects); with ``tracking``
+    (:attr:`SLAMRun.keyframe_tracking`) each keyframe's tracked pose in its reference too."""
     depths = np.stack([k.depth_map().detach().cpu().float().numpy() for k in keyframes])  # (K, H, W)
     arrays = {
         "id": np.array([k.id for k in keyframes], dtype=np.int64),
@@ -372,6 +379,9 @@ def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: Pinh
         "camera": np.array([camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height]),
         "segment": np.array([k.segment for k in keyframes], dtype=np.int64),
     }
+    if tracking is not None:  # the tracker's own pose of each keyframe in its reference (-1 and NaN: none)
+        arrays["tracked_from"] = np.array([r for r, _ in tracking], dtype=np.int64)
+        arrays["T_tracked"] = np.stack([np.full((4, 4), np.nan) if T is None else T.numpy() for _, T in tracking])
     H, W = depths.shape[1:]
     for name in ("depth_zero", "uncertainty", "depth_gt"):  # NaN where a keyframe has none
         arrays[name] = np.stack([np.full((H, W), np.nan, np.float32) if getattr(k, name) is None
@@ -392,7 +402,7 @@ def write_outputs(
     write_tum(paths["trajectory.txt"], run.trajectory)
     write_frame_log(paths["frames.csv"], run.results)
     write_tum(paths["keyframes.txt"], run.keyframe_trajectory)
-    write_keyframes(paths["keyframes.npz"], run.keyframes, run.camera)
+    write_keyframes(paths["keyframes.npz"], run.keyframes, run.camera, run.keyframe_tracking)
     with atomic_write(paths["config.yaml"]) as f:
         f.write(config.to_yaml())
     from codeslam.recon.ply import write_ply

@@ -962,6 +962,22 @@ class CodeSLAM:
         return Trajectory(np.array([k.timestamp for k in self.keyframes]),
                           torch.stack([k.T_wc for k in self.keyframes]))
 
+    def keyframe_tracking(self) -> list[tuple[int, torch.Tensor | None]]:
+        """For each keyframe (in :attr:`keyframes`' order) the keyframe its frame was tracked against and the
+        tracked pose in it, ``T_ref,this`` (4, 4) float64, as the tracker left it before any window solve (its
+        translation in the reference's depth units, rescaled with the frame records when a map segment's first
+        solve sets the scale, :meth:`_rescale`); (-1, None) for a keyframe not made from a tracked frame (a map's
+        first, a new segment's). It tells the tracker's error from the window's (``scripts/keyframe_errors.py``)."""
+        out = []
+        for k in self.keyframes:
+            pos = self._keyframe_record.get(k.id)
+            rec = None if pos is None else self._records[pos]
+            if rec is None or rec.tracked_id == k.id:
+                out.append((-1, None))
+            else:
+                out.append((rec.tracked_id, rec.T_tracked.detach().to(torch.float64).cpu().clone()))
+        return out
+
     def readout_summary(self) -> dict | None:
         """The online choice of the rolling-shutter readout and its evidence; None when it is not estimated."""
         return None if self.readout_choice is None else self.readout_choice.summary()

@@ -205,6 +205,42 @@ def test_codes_in_the_decoders_leading_directions(tmp_path):
     np.testing.assert_allclose(codes[-1], run.keyframes[-1].network_code.double().numpy())
 
 
+def test_each_keyframe_keeps_the_pose_the_tracker_gave_it(tmp_path):
+    # CodeSLAM.keyframe_tracking: the keyframe's frame's tracked pose in its reference, before any window solve.
+    # With the window's solves switched off the map keeps the tracked poses, so each keyframe's final pose is its
+    # reference's times that record; with solves the window moves them, and the record stays the tracker's.
+    import numpy as np
+
+    from codeslam.slam.pipeline import write_keyframes
+
+    frames = synth_frames(3, 16, 7.5)
+    config = small_config(size=3)
+    still = dataclasses.replace(config, window=dataclasses.replace(
+        config.window, sfm=dataclasses.replace(config.window.sfm, max_iterations=(0, 0, 0))))
+    runs = {}
+    for name, cfg in (("still", still), ("solved", config)):
+        seq = MemorySequence(frames)
+        runs[name] = run_slam(seq, CodeSLAM(cfg, standin_depth_model(num_levels=3)), frames[0].camera)
+    for name, run in runs.items():
+        kfs, tracking = run.keyframes, run.keyframe_tracking
+        assert len(kfs) >= 3 and len(tracking) == len(kfs) and tracking[0] == (-1, None)
+        by_id = {k.id: k for k in kfs}
+        moved = 0.0
+        for k, (ref, T) in zip(kfs[1:], tracking[1:]):
+            assert ref in by_id and ref < k.id
+            moved = max(moved, float((by_id[ref].T_wc @ T - k.T_wc).abs().max()))
+        if name == "still":
+            assert moved < 1e-6  # project_to_se3 of the composed pose: rounding only
+        else:
+            assert moved > 1e-4  # the window moved them; the record did not follow
+    run = runs["solved"]
+    write_keyframes(tmp_path / "kf.npz", run.keyframes, frames[0].camera, run.keyframe_tracking)
+    z = np.load(tmp_path / "kf.npz")
+    assert z["tracked_from"][0] == -1 and np.isnan(z["T_tracked"][0]).all()
+    np.testing.assert_array_equal(z["tracked_from"][1:], [r for r, _ in run.keyframe_tracking[1:]])
+    np.testing.assert_allclose(z["T_tracked"][1:], np.stack([T.numpy() for _, T in run.keyframe_tracking[1:]]))
+
+
 def test_a_free_scale_per_keyframe(tmp_path):
     # window.free_scale: the codes carry one more entry, a log scale the window moves; the map's files hold the
     # network's code and each keyframe's depth is its unscaled depth times exp(s)
