@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Container, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -217,12 +217,14 @@ def levenberg_marquardt(
 def coarse_to_fine(
     problem_at: Callable[[int], Any], state, layout: VariableLayout, cfg: SfMConfig,
     levels: Iterable[tuple[int, int]], clock: Clock = NO_CLOCK, interrupted: Callable[[], bool] | None = None,
+    interruptible_levels: Container[int] | None = None,
 ) -> tuple[Any, list[tuple[int, LMReport]], Any]:
     """Levenberg-Marquardt at each pyramid level in ``levels`` ((level, iterations), coarse to fine), each level
     starting from the one before (paper Sec. 4.1 and 4.2: the coarse levels widen the basin, the fine ones
     sharpen the estimate). ``problem_at(level)`` builds that level's problem (any problem
     :func:`levenberg_marquardt` drives); the N-frame SfM, the window and the tracker all run this one loop.
-    Stops early when a level was interrupted (see :func:`levenberg_marquardt`).
+    Stops early when a level was interrupted (see :func:`levenberg_marquardt`); ``interrupted`` is asked only at
+    the pyramid levels in ``interruptible_levels`` (None: at every level), the others run whole.
 
     Returns the final state, one (level, :class:`LMReport`) per visited level, and the last level's problem (None
     when ``levels`` is empty)."""
@@ -230,7 +232,8 @@ def coarse_to_fine(
     problem = None
     for lvl, iters in levels:
         problem = problem_at(lvl)
-        state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, clock, interrupted)
+        cut = interrupted if interruptible_levels is None or lvl in interruptible_levels else None
+        state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, clock, cut)
         reports.append((lvl, rep))
         if rep.reason == "interrupted":
             break

@@ -466,6 +466,17 @@ class WindowConfig:
     """Parallel mapping: a keyframe the tracker needs at once (the last one is leaving the view) stops the running
     window solve after its current iteration instead of waiting for all of it, as ORB-SLAM's local mapping stops
     its bundle adjustment for a new keyframe; the next solve goes on from there."""
+    interrupt_finest_only: bool = True
+    """With ``interruptible``: the tracker's stop reaches a solve in its finest level only; the coarser levels, a
+    third of a solve's time, always run whole (the stop waits for them). Cut anywhere, 49-50 of the parallel
+    HoloLens walk's 50-51 solves ended after a median of 1-3 iterations of the coarsest level, its keyframes 2.3°
+    apart from each other in error (sequential 0.49°). Measured (docs/results/slam_table.md, thirty-seventh
+    session; ``--parallel --threads 2``, ATE Sim(3) m, cut anywhere -> finest only, alternating): the HoloLens walk
+    0.372-0.514 (median 0.421, 9 runs) -> 0.255-0.420 (median 0.355, 4 runs), rotation 10.9-22.3 -> 9.3-13.1°, the
+    final map's keyframe steps 2.3 -> 1.3° off, but 4.5-6.4 -> 2.8-3.7 frames/s; the generator walk 0.197 / 0.201 /
+    0.209 -> 0.361 / 0.164 / 0.158, corridor 0.190 / 0.205 / 0.187 -> 0.218 / 0.179 / 0.183, hand-held 0.033 /
+    0.066 / 0.062 -> 0.069 / 0.069 / 0.058, TUM fr1/rpy 0.0159 / 0.0149 -> 0.0126 / 0.0150 (0.8-1.0x the frames/s
+    there). False: any level may be cut (before)."""
     solve_process: bool = False
     """Parallel mapping on the CPU: the window solve and the marginalisation run in a child process
     (:mod:`codeslam.slam.solve_process`) instead of on the mapping thread, so that their Python work does not take

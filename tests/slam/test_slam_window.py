@@ -212,7 +212,7 @@ def test_an_interrupted_solve_stops_after_the_iteration_it_was_in_and_keeps_its_
     G0 = se3_inverse(frames[0].pose)
     truth = [G0 @ f.pose for f in frames]
     start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
-    cfg = small_config(size=4)
+    cfg = small_config(size=4, interrupt_finest_only=False)  # any level may be cut
     full = _window(frames, cfg, start).optimise()
     assert not full.interrupted and full.iterations > 3
     calls = {"n": 0}
@@ -228,6 +228,26 @@ def test_an_interrupted_solve_stops_after_the_iteration_it_was_in_and_keeps_its_
     assert lm.accepted >= 1 and lm.costs[-1] < lm.costs[0]  # the iterations it made lowered the cost...
     assert any(_pose_err(k.T_wc, T0)[0] > 1e-6 for k, T0 in zip(w.keyframes[1:], start[1:]))  # ...and are kept
     assert _window(frames, cfg, start).optimise(lambda: True).iterations == 0
+
+
+def test_by_default_the_trackers_stop_reaches_the_finest_level_only():
+    """WindowConfig.interrupt_finest_only (the default): a stop asked for from the start still lets the coarser
+    levels run whole, as a solve without any stop runs them, and ends the solve before the finest level's first
+    iteration."""
+    frames = synth_frames(3, 16, 10.0)[::5]
+    G0 = se3_inverse(frames[0].pose)
+    truth = [G0 @ f.pose for f in frames]
+    start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
+    cfg = small_config(size=4)
+    assert cfg.window.interrupt_finest_only
+    full = _window(frames, cfg, start).optimise()
+    rep = _window(frames, cfg, start).optimise(lambda: True)
+    assert rep.interrupted and [lvl for lvl, _ in rep.levels] == list(cfg.window.sfm.pyramid_levels)
+    finest = rep.levels[-1][1]
+    assert finest.reason == "interrupted" and finest.iterations == 0
+    for (lvl, lm), (lvl_full, lm_full) in zip(rep.levels[:-1], full.levels[:-1]):
+        assert lvl == lvl_full and lm.reason != "interrupted" and lm.iterations == lm_full.iterations > 0
+        assert lm.costs == lm_full.costs  # the same steps as without any stop
 
 
 def _velocity_change(prior: VelocityPrior, window: SlidingWindow) -> float:
