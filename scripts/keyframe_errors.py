@@ -79,40 +79,38 @@ def tracked_errors(kf: dict[str, np.ndarray], ref: Trajectory, steps: bool = Fal
     if "tracked_from" not in kf or "T_tracked" not in kf:
         print("keyframes.npz holds no tracked poses (written before they were kept)")
         return None
-    pos = {int(i): n for n, i in enumerate(kf["id"])}
     est = Trajectory(kf["timestamp"], kf["T_wc"])
     i_est, i_ref = match_trajectories(est, ref, min_matches=1)
-    truth = dict(zip(i_est.tolist(), ref.poses.detach().cpu().numpy()[i_ref].astype(np.float64)))
-    rows = []
-    for n, r in enumerate(kf["tracked_from"]):
-        m = pos.get(int(r))
-        if m is None or n not in truth or m not in truth or not np.isfinite(kf["T_tracked"][n]).all():
-            continue
-        true_rel = np.linalg.inv(truth[m]) @ truth[n]
-        final_rel = np.linalg.inv(kf["T_wc"][m]) @ kf["T_wc"][n]
-        rows.append((kf["frame_index"][n], kf["frame_index"][m], true_rel, kf["T_tracked"][n], final_rel))
-    if not rows:
+    Q = np.full(kf["T_wc"].shape, np.nan)  # each keyframe's true pose (NaN: none matched)
+    Q[i_est] = ref.poses.detach().cpu().numpy()[i_ref]
+    pos = {int(i): n for n, i in enumerate(kf["id"])}
+    pairs = [(pos[int(r)], n) for n, r in enumerate(kf["tracked_from"]) if int(r) in pos]
+    pairs = [(m, n) for m, n in pairs if np.isfinite(Q[[m, n]]).all() and np.isfinite(kf["T_tracked"][n]).all()]
+    if not pairs:
         print("no keyframe has a tracked pose with ground truth for it and its reference")
         return None
-    true_rel, tracked, final = (np.stack([r[i] for r in rows]) for i in (2, 3, 4))
+    m, n = np.array(pairs).T  # each keyframe n and the keyframe m it was tracked against
+    true_rel = relative_poses(Q, m, n)
+    E_tracked = np.linalg.inv(true_rel) @ kf["T_tracked"][n]  # the tracked motion's error, as the RPE's
+    E_final = relative_motion_errors(kf["T_wc"], Q, m, n)
     out = {
-        "frame": np.array([r[0] for r in rows]), "reference": np.array([r[1] for r in rows]),
-        "tracked_rotation": np.degrees(rotation_angle(np.swapaxes(true_rel[:, :3, :3], 1, 2) @ tracked[:, :3, :3])),
-        "final_rotation": np.degrees(rotation_angle(np.swapaxes(true_rel[:, :3, :3], 1, 2) @ final[:, :3, :3])),
-        "tracked_direction": direction_angle(tracked[:, :3, 3], true_rel[:, :3, 3]),
-        "final_direction": direction_angle(final[:, :3, 3], true_rel[:, :3, 3]),
+        "frame": kf["frame_index"][n], "reference": kf["frame_index"][m],
+        "tracked_rotation": np.degrees(rotation_angle(E_tracked[:, :3, :3])),
+        "final_rotation": np.degrees(rotation_angle(E_final[:, :3, :3])),
+        "tracked_direction": direction_angle(kf["T_tracked"][n][:, :3, 3], true_rel[:, :3, 3]),
+        "final_direction": direction_angle(relative_poses(kf["T_wc"], m, n)[:, :3, 3], true_rel[:, :3, 3]),
     }
     gap = out["frame"] - out["reference"]
-    print(f"keyframes in their tracking reference ({len(rows)}, median {np.median(gap):.0f} frames apart): rotation "
+    print(f"keyframes in their tracking reference ({len(n)}, median {np.median(gap):.0f} frames apart): rotation "
           f"error median {np.median(out['tracked_rotation']):.2f} deg tracked, "
           f"{np.median(out['final_rotation']):.2f} deg in the final map; translation direction error median "
           f"{np.nanmedian(out['tracked_direction']):.1f} deg tracked, {np.nanmedian(out['final_direction']):.1f} "
           f"deg in the final map")
     if steps:
-        for n in range(len(rows)):
-            print(f"frame {out['frame'][n]:>4} in {out['reference'][n]:>4}: rotation {out['tracked_rotation'][n]:.2f}"
-                  f" -> {out['final_rotation'][n]:.2f} deg, direction {out['tracked_direction'][n]:.1f} -> "
-                  f"{out['final_direction'][n]:.1f} deg")
+        for k in range(len(n)):
+            print(f"frame {out['frame'][k]:>4} in {out['reference'][k]:>4}: rotation {out['tracked_rotation'][k]:.2f}"
+                  f" -> {out['final_rotation'][k]:.2f} deg, direction {out['tracked_direction'][k]:.1f} -> "
+                  f"{out['final_direction'][k]:.1f} deg")
     return out
 
 
