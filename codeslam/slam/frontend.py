@@ -18,6 +18,7 @@ import torch
 
 from codeslam.data.frame import Frame
 from codeslam.geometry.camera import PinholeCamera
+from codeslam.geometry.image import image_is_finite
 from codeslam.slam.config import FeatureConfig
 from codeslam.slam.features import (
     Features,
@@ -111,7 +112,7 @@ class SparseTracker:
         gray = frame.gray[None].float()
         hi = gray[0] if frame.camera == cam else resample_image(gray, frame.camera, cam)[0]
         valid = resample_validity(frame.valid, frame.camera, cam) if frame.camera != cam else frame.valid
-        if not bool(torch.isfinite(hi).all()):
+        if not image_is_finite(hi):
             return None
         return self.extract(to_uint8(hi), None if valid is None else valid.numpy())
 

@@ -46,6 +46,7 @@ from codeslam.data.frame import Frame, resample_frame
 from codeslam.data.trajectory import Trajectory
 from codeslam.errors import CodeSLAMError
 from codeslam.geometry.camera import PinholeCamera
+from codeslam.geometry.image import image_is_finite
 from codeslam.geometry.lie import se3_inverse, so3_log
 from codeslam.geometry.resample import resample_depth
 from codeslam.geometry.rolling_shutter import rectify_image, rectify_points, source_pixels
@@ -315,7 +316,7 @@ class CodeSLAM:
             return self._start_map(views)
         ref = self.ref
         T_kf_guess = self._predict(ref)
-        if not bool(torch.isfinite(views.frame.image).all()):
+        if not image_is_finite(views.frame.image):
             return self._lost_frame(views, ref, T_kf_guess, None, "non-finite pixels in the image")
         with self.clock("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
             track, sparse, source = self._track(views, ref, T_kf_guess)
@@ -546,7 +547,7 @@ class CodeSLAM:
         """Whether a frame can start a new map segment: finite, textured (a black or blank frame would anchor a
         map nothing can be tracked against) and, with features, with keypoints to match later frames to."""
         frame = views.frame
-        if not bool(torch.isfinite(frame.image).all()):
+        if not image_is_finite(frame.image):
             return False
         valid = frame.gray[0] if frame.valid is None else frame.gray[0][frame.valid]
         if valid.numel() < 2 or float(valid.std()) < self.config.tracker.min_intensity_std:
@@ -641,7 +642,7 @@ class CodeSLAM:
         return kid
 
     def _start_map(self, views: _Views) -> FrameResult:
-        if not bool(torch.isfinite(views.frame.image).all()):
+        if not image_is_finite(views.frame.image):
             raise CodeSLAMError(f"frame {views.frame.index} (the first) has non-finite pixels; cannot start the map")
         with self.clock("decode"):
             kf = self._make_keyframe(views, torch.eye(4, dtype=torch.float64), self._new_id(), self.segment)

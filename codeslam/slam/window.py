@@ -100,6 +100,7 @@ class MapKeyframe:
     free_scale: bool = False
     input_camera: PinholeCamera | None = None
     rectified_by: torch.Tensor | None = None
+    _median: tuple | None = field(default=None, init=False, repr=False, compare=False)  # see median_depth
 
     @property
     def network_code(self) -> torch.Tensor:
@@ -128,9 +129,19 @@ class MapKeyframe:
         return float(((p <= MIN_PROXIMITY) | (p >= MAX_PROXIMITY) | ~torch.isfinite(p)).float().mean())
 
     def median_depth(self) -> float:
-        """Median of the decoded depth (metres): the scene scale that keyframe selection compares against."""
-        d = self.depth_map()
-        return float(d[d > 0].median())
+        """Median of the decoded depth (metres): the scene scale that keyframe selection compares against.
+
+        Kept with the code, decoder and depth objects it was computed from and computed again when any of them is
+        another: the mapping thread replaces those attributes and never edits them (:mod:`codeslam.slam.mapping`),
+        and the tracker asks for the same keyframe's median several times a frame (TUM fr1/rpy in parallel mode:
+        496 decodings of 1 ms each on the tracking thread of a 14.5 s run)."""
+        key = (self.code, self.view.decoder, self.depth)
+        memo = self._median  # one read: the other thread may replace it meanwhile
+        if memo is None or any(a is not b for a, b in zip(memo[0], key)):
+            d = self.depth_map()
+            memo = (key, float(d[d > 0].median()))
+            self._median = memo
+        return memo[1]
 
     def freeze(self) -> None:
         """Keep the final depth, drop the decoder (its Jacobian is the bulk of a keyframe's memory)."""

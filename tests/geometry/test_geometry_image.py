@@ -8,6 +8,7 @@ from codeslam.geometry.image import (
     bilinear_sample,
     depth_pyramid,
     image_gradients,
+    image_is_finite,
     image_pyramid,
     nearest_sample,
     pyramid_cameras,
@@ -22,6 +23,17 @@ def _ramp(h: int, w: int, gu: float, gv: float, c: float = 0.1) -> torch.Tensor:
     """(1, 1, h, w) image I = c + gu u + gv v."""
     grid = pixel_grid(h, w, F64)
     return (c + gu * grid[..., 0] + gv * grid[..., 1])[None, None]
+
+
+@pytest.mark.parametrize("bad", [float("nan"), float("inf"), float("-inf")])
+def test_image_is_finite_finds_one_bad_pixel(bad):
+    img = torch.rand(3, 384, 512)
+    assert image_is_finite(img) and image_is_finite(torch.ones(3, 480, 640))
+    img[1, 200, 300] = bad
+    assert not image_is_finite(img)
+    img[1, 200, 300] = 0.5
+    img[0, 0, 0], img[2, -1, -1] = float("inf"), float("-inf")  # the two infinities do not cancel
+    assert not image_is_finite(img)
 
 
 def test_rgb_to_gray_weights():

@@ -139,6 +139,25 @@ def _window(frames, cfg, T_wc):
     return w
 
 
+def test_median_depth_follows_the_code_decoder_and_depth_that_replace_each_other():
+    """The median is kept between calls and computed again whenever the code, the decoder or the final depth is
+    another object (the mapping thread replaces them, never edits them)."""
+    frames = synth_frames(3, 2, 10.0)
+    kf = _window(frames[:1], small_config(size=4), [torch.eye(4, dtype=D)]).keyframes[0]
+
+    def fresh() -> float:
+        d = kf.depth_map()
+        return float(d[d > 0].median())
+
+    first = kf.median_depth()
+    assert first == fresh() and kf.median_depth() == first
+    kf.code = torch.full_like(kf.code, 0.5)  # a solve's new code
+    assert kf.median_depth() == fresh() != first
+    kf.freeze()  # marginalised: the final depth, no decoder
+    kf.depth = 2.0 * kf.depth
+    assert kf.median_depth() == fresh()
+
+
 def _pose_err(T, T_ref):
     e = se3_log(se3_inverse(T_ref) @ T)
     return float(e[:3].norm()), math.degrees(float(e[3:].norm()))
