@@ -476,7 +476,8 @@ class WindowConfig:
     final map's keyframe steps 2.3 -> 1.3° off, but 4.5-6.4 -> 2.8-3.7 frames/s; the generator walk 0.197 / 0.201 /
     0.209 -> 0.361 / 0.164 / 0.158, corridor 0.190 / 0.205 / 0.187 -> 0.218 / 0.179 / 0.183, hand-held 0.033 /
     0.066 / 0.062 -> 0.069 / 0.069 / 0.058, TUM fr1/rpy 0.0149-0.0165 m and 1.35-1.48° (4 runs) -> 0.0126-0.0171 m
-    and 1.37-1.68° (6 runs, 3 at or above 1.5°; 0.8-1.0x the frames/s there). False: any level may be cut (before)."""
+    and 1.37-1.68° (6 runs, 3 at or above 1.5°; 0.8-1.0x the frames/s there; eleven more in the thirty-eighth
+    session: 0.0112-0.0189 m, 1.26-1.61°, median 1.38°, one above 1.5°). False: any level may be cut (before)."""
     solve_process: bool = False
     """Parallel mapping on the CPU: the window solve and the marginalisation run in a child process
     (:mod:`codeslam.slam.solve_process`) instead of on the mapping thread, so that their Python work does not take
