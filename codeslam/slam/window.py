@@ -147,6 +147,7 @@ class MapKeyframe:
         """Keep the final depth, drop the decoder (its Jacobian is the bulk of a keyframe's memory)."""
         self.depth = self.depth_map().detach()
         self.view = Keyframe(self.view.image, self.view.camera, None, self.view.valid)
+        self._median = None  # it holds the decoder too
 
 
 @dataclass

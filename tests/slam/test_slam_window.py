@@ -3,7 +3,9 @@ real sliding window it carries the marginalised keyframe's anchoring (the gauge)
 
 from __future__ import annotations
 
+import gc
 import math
+import weakref
 from dataclasses import replace
 
 import pytest
@@ -153,7 +155,10 @@ def test_median_depth_follows_the_code_decoder_and_depth_that_replace_each_other
     assert first == fresh() and kf.median_depth() == first
     kf.code = torch.full_like(kf.code, 0.5)  # a solve's new code
     assert kf.median_depth() == fresh() != first
-    kf.freeze()  # marginalised: the final depth, no decoder
+    decoder = weakref.ref(kf.view.decoder)
+    kf.freeze()  # marginalised: the final depth, no decoder, and nothing left holding it
+    gc.collect()
+    assert decoder() is None
     kf.depth = 2.0 * kf.depth
     assert kf.median_depth() == fresh()
 
