@@ -91,14 +91,14 @@ def tracked_errors(kf: dict[str, np.ndarray], ref: Trajectory, steps: bool = Fal
         return None
     m, n = np.array(pairs).T  # each keyframe n and the keyframe m it was tracked against
     true_rel = relative_poses(Q, m, n)
-    E_tracked = np.linalg.inv(true_rel) @ kf["T_tracked"][n]  # the tracked motion's error, as the RPE's
-    E_final = relative_motion_errors(kf["T_wc"], Q, m, n)
+    tracked, final = kf["T_tracked"][n], relative_poses(kf["T_wc"], m, n)  # keyframe n in m, as tracked and final
+    E_tracked, E_final = np.linalg.inv(true_rel) @ np.stack([tracked, final])  # each motion's error, as the RPE's
     out = {
         "frame": kf["frame_index"][n], "reference": kf["frame_index"][m],
         "tracked_rotation": np.degrees(rotation_angle(E_tracked[:, :3, :3])),
         "final_rotation": np.degrees(rotation_angle(E_final[:, :3, :3])),
-        "tracked_direction": direction_angle(kf["T_tracked"][n][:, :3, 3], true_rel[:, :3, 3]),
-        "final_direction": direction_angle(relative_poses(kf["T_wc"], m, n)[:, :3, 3], true_rel[:, :3, 3]),
+        "tracked_direction": direction_angle(tracked[:, :3, 3], true_rel[:, :3, 3]),
+        "final_direction": direction_angle(final[:, :3, 3], true_rel[:, :3, 3]),
     }
     gap = out["frame"] - out["reference"]
     print(f"keyframes in their tracking reference ({len(n)}, median {np.median(gap):.0f} frames apart): rotation "
