@@ -163,9 +163,11 @@ def test_no_texture_gives_no_features_and_pnp_refuses():
     assert not res.ok
 
 
-def test_the_frontends_numpy_pose_inverse_is_the_torch_one_to_the_last_bit():
+def test_the_frontends_numpy_pose_inverse_is_the_torch_one_to_rounding():
     """The sparse front-end inverts its NumPy poses itself (speed); it must give what geometry.lie.se3_inverse
-    gives, bit for bit, so that moving it changed no trajectory; and it is an inverse."""
+    gives, and be an inverse. To rounding, not to the bit: the 3x3 product -R^T t is rounded as each library's
+    kernel sums it, which is the same on some CPUs (the Intel Xeon of the session that wrote it: equal to the last
+    bit) and not on others (an AMD EPYC: 1,466 of 2,000 poses differ, by at most 2 units in the last place)."""
     from codeslam.geometry.lie import se3_exp
     from codeslam.slam.frontend import _se3_inverse
 
@@ -175,7 +177,11 @@ def test_the_frontends_numpy_pose_inverse_is_the_torch_one_to_the_last_bit():
                                                                                dtype=torch.float64)
         T = se3_exp(xi)
         inv = _se3_inverse(T.numpy())
-        assert np.array_equal(inv, se3_inverse(T).numpy())
+        ref = se3_inverse(T).numpy()
+        np.testing.assert_array_equal(inv[:3, :3], ref[:3, :3])  # a transpose: exact everywhere
+        ulp = np.spacing(np.abs(ref[:3, 3]).max())
+        np.testing.assert_allclose(inv[:3, 3], ref[:3, 3], rtol=0, atol=4 * ulp)
+        np.testing.assert_array_equal(inv[3], [0.0, 0.0, 0.0, 1.0])
         np.testing.assert_allclose(inv @ T.numpy(), np.eye(4), atol=1e-12)
 
 
