@@ -100,17 +100,20 @@ def jacobian_dtype(setting: str, device: torch.device | str = "cpu",
     'bfloat16') or is 'auto'; ``device`` and ``system_dtype`` are where and in what the SLAM system solves.
 
     'auto' is float32 when the system runs in float64 (a check of the maths, not of speed), else bfloat16 on a
-    CPU with AMX (``amx_bf16``: Intel Xeon since Sapphire Rapids), whose tile unit runs
-    oneDNN's bfloat16 convolutions, and float32 everywhere else: without the tile unit bfloat16 gains little
-    (measured under autocast on an AMD EPYC with ``avx512_bf16`` but no AMX: 301 -> 266 ms, 12% less; with AMX,
-    128x96, code 128: 250 -> 82 ms on one thread, 142 -> 54 ms on two). J then holds about three significant
-    digits (largest error 0.8% of the largest entry, the shipped weights); the decoded depth stays float32.
+    CPU that multiplies bfloat16 in hardware (``amx_bf16``: Intel Xeon since Sapphire Rapids; ``avx512_bf16``: Intel
+    Cooper Lake, AMD since Zen 4), and float32 everywhere else (a GPU, a CPU without either). Measured with
+    ``benchmarks/bench_decode.py`` (128x96, code 128, the shipped weights): with AMX 250 -> 82 ms on one thread, 142
+    -> 54 ms on two; on an AMD EPYC with ``avx512_bf16`` and no AMX 277 -> 156 ms on one thread, 164 -> 92 ms on
+    two (0.56x; bfloat16 autocast, which kept some float32 operands, had gained only 12% there); on the same CPU with
+    oneDNN held below its bfloat16 instructions (``ONEDNN_MAX_CPU_ISA=AVX512_CORE_VNNI`` / ``AVX2``) bfloat16
+    took 1.8x / 9x float32's time, hence float32 on such CPUs. J then holds about three significant digits (largest
+    error 0.8% of the largest entry, the shipped weights); the decoded depth stays float32.
     """
     if setting == "auto":
         capabilities = getattr(torch.cpu, "get_capabilities", None)  # absent in older torch: float32
-        amx = torch.device(device).type == "cpu" and capabilities is not None and bool(
-            capabilities().get("amx_bf16", False))
-        return torch.bfloat16 if amx and system_dtype == torch.float32 else torch.float32
+        caps = capabilities() if torch.device(device).type == "cpu" and capabilities is not None else {}
+        bf16_in_hardware = bool(caps.get("amx_bf16", False) or caps.get("avx512_bf16", False))
+        return torch.bfloat16 if bf16_in_hardware and system_dtype == torch.float32 else torch.float32
     dtype = getattr(torch, setting, None)
     if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
         raise ValueError(f"the code Jacobian's type must be 'auto' or a floating-point type, got {setting!r}")

@@ -537,13 +537,15 @@ class SLAMConfig:
     in float64 either way)."""
     jacobian_dtype: str = "auto"
     """The type each keyframe's code Jacobian (the network's, Sec. 4.1) is computed in: float32, bfloat16, or
-    auto (bfloat16 on a CPU with AMX, float32 elsewhere and with ``dtype: float64``:
-    :func:`codeslam.network.jacobian.jacobian_dtype`). The
+    auto (bfloat16 on a CPU with bfloat16 instructions, ``amx_bf16`` or ``avx512_bf16``, float32 elsewhere and
+    with ``dtype: float64``: :func:`codeslam.network.jacobian.jacobian_dtype`). The
     zero-code depth and everything after the Jacobian keep ``dtype``. Measured on a 2-core CPU with AMX (docs/
     results/slam_table.md, thirty-first session; float32 -> bfloat16): a keyframe's decoding 158-212 -> 73-77 ms
     on 2 threads; ATE Sim(3) at 1 thread HoloLens walk 0.1383 -> 0.1381 m, TUM fr1/rpy 0.0127 -> 0.0131 m,
     generator walk 0.0479 -> 0.0487 m, corridor 0.1762 -> 0.1761 m (eight runs: geometric mean 1.009x, inside
-    the spread of two draws), every frame tracked in all."""
+    the spread of two draws), every frame tracked in all. On an AMD EPYC with ``avx512_bf16`` and no AMX
+    (thirty-ninth session): decoding 155 -> 100 ms median inside a sequential TUM run on 2 threads, that run 1.11x
+    the frames/s; nine runs at 1 thread within 0.97-1.01x float32's ATE (geometric mean 0.993x)."""
     trajectory: str = "interpolated"
     """How the final trajectory places a frame that is not a keyframe. 'reference': its reference keyframe's final
     pose times the pose tracked against it (``T_wk T_kf``, as ORB-SLAM and DSO write theirs), so the frames jump

@@ -119,13 +119,15 @@ def test_a_jacobian_computed_in_bfloat16_is_the_float32_one_to_its_precision(tin
         assert 0 < err < 0.03, (lvl, float(err))  # rounded, but to bfloat16's precision
 
 
-def test_auto_jacobian_type_is_bfloat16_only_on_a_cpu_with_amx(monkeypatch):
-    caps = {"amx_bf16": True}
+def test_auto_jacobian_type_is_bfloat16_only_on_a_cpu_with_bfloat16_instructions(monkeypatch):
+    caps = {"amx_bf16": True, "avx512_bf16": False}
     monkeypatch.setattr(torch.cpu, "get_capabilities", lambda: caps, raising=False)
     assert jacobian_dtype("auto", "cpu") == torch.bfloat16
     assert jacobian_dtype("auto", "cuda") == torch.float32  # a GPU keeps float32
     assert jacobian_dtype("auto", "cpu", torch.float64) == torch.float32  # a float64 system checks the maths
-    caps["amx_bf16"] = False  # without the tile unit (avx512_bf16 alone gains little): float32
+    caps.update(amx_bf16=False, avx512_bf16=True)  # AVX-512's bfloat16 dot products without the tile unit
+    assert jacobian_dtype("auto", "cpu") == torch.bfloat16
+    caps["avx512_bf16"] = False  # neither: oneDNN would convert in software, slower than float32
     assert jacobian_dtype("auto", "cpu") == torch.float32
     monkeypatch.delattr(torch.cpu, "get_capabilities")  # a torch that cannot tell: float32
     assert jacobian_dtype("auto", "cpu") == torch.float32
