@@ -4,6 +4,7 @@ result (a wrong ``--dataset`` path hung the bench)."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -33,3 +34,49 @@ def test_a_run_that_fails_in_its_process_stops_the_bench_with_its_error(tmp_path
     seq = tum_folder(tmp_path / "seq", n=3)
     p = _bench("--dataset", str(seq), "--weights", str(tmp_path / "missing.safetensors"), "--modes", "sequential")
     _assert_one_line(p, "the sequential run failed")
+
+
+BENCH_CLI = BENCH.parent / "bench_cli.py"
+
+
+def _bench_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(BENCH_CLI), "--threads", "1", *args],
+                          capture_output=True, text=True, timeout=300)
+
+
+def _assert_one_cli_line(p: subprocess.CompletedProcess, phrase: str) -> None:
+    assert p.returncode != 0
+    assert "Traceback" not in p.stderr
+    lines = [line for line in p.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("bench_cli:") and phrase in lines[0], p.stderr
+
+
+def test_the_whole_process_bench_refuses_a_missing_dataset_or_configuration_before_any_run(tmp_path):
+    seq = tum_folder(tmp_path / "seq", n=3)
+    _assert_one_cli_line(_bench_cli(str(tmp_path / "missing")), "dataset not found")
+    _assert_one_cli_line(_bench_cli(str(seq), "--config", str(tmp_path / "none.yaml")), "configuration file not found")
+
+
+def test_the_whole_process_bench_stops_with_the_failed_runs_own_error(tmp_path):
+    seq = tum_folder(tmp_path / "seq", n=3)
+    p = _bench_cli(str(seq), "--weights", str(tmp_path / "missing.safetensors"), "--modes", "sequential",
+                   "--rounds", "1")
+    _assert_one_cli_line(p, "weights file not found")
+
+
+def test_the_whole_process_bench_prints_each_cells_medians_and_the_ratio(tmp_path):
+    seq = tum_folder(tmp_path / "seq", n=4)
+    cfg = tmp_path / "f32.yaml"
+    cfg.write_text("jacobian_dtype: float32\n")
+    out = tmp_path / "runs.json"
+    p = _bench_cli(str(seq), "--modes", "sequential", "--rounds", "1", "--config", "default", str(cfg),
+                   "--json", str(out))
+    assert p.returncode == 0, p.stderr
+    for row in ("wall s", "frames/s, whole process", "frames/s, its summary", "CPU s", "peak memory MB",
+                "failed frames", "ATE Sim(3) m"):
+        assert any(line.startswith(row) for line in p.stdout.splitlines()), (row, p.stdout)
+    assert "seq sequential: f32 / default whole-process frames/s = " in p.stdout
+    runs = json.loads(out.read_text())
+    assert sorted(runs) == sorted(f"{seq} sequential {c}" for c in ("default", str(cfg)))
+    for cell in runs.values():
+        assert len(cell) == 1 and cell[0]["frames"] == 4 and cell[0]["wall_s"] > 0 and cell[0]["cpu_s"] > 0
