@@ -31,8 +31,6 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-
 
 def _fail(msg: str) -> None:
     print(f"bench_cli: {msg}", file=sys.stderr)
@@ -56,7 +54,7 @@ def run_once(data: str, mode: str, config: str, args: argparse.Namespace, out: P
     stderr = proc.stderr.read()
     _, status, usage = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
-    proc.returncode = os.waitstatus_to_exitcode(status)
+    proc.returncode = os.waitstatus_to_exitcode(status)  # reaped by wait4 (for its rusage): Popen must not wait again
     if proc.returncode != 0:
         last = [line for line in stderr.splitlines() if line.strip()]
         _fail(f"{Path(data).name} {mode} {Path(config).stem}: codeslam slam exited with {proc.returncode}: "
