@@ -237,6 +237,9 @@ def test_the_mapping_line_says_when_parallel_mapping_fell_behind(tmp_path):
                          "mapping_statistics": {**behind, "cut_short": 0, "cut_before_first_iteration": 0}}) == (
         "sequential: 50 window solves, median 2 iterations")
     assert mapping_text({"mapping": "sequential"}) is None  # a run from before the statistics
+    undone = mapping_text({"mapping": "sequential", "window_rollbacks": 11,
+                           "mapping_statistics": {**behind, "cut_short": 0, "cut_before_first_iteration": 0}})
+    assert undone.startswith("sequential: 50 window solves, median 2 iterations; 11 undone by the window's checks")
     root = _make_run(tmp_path / "run")
     s = json.loads((root / "result.json").read_text())
     (root / "result.json").write_text(json.dumps({**s, "mapping": "parallel", "mapping_statistics": behind}))
