@@ -290,7 +290,12 @@ class KeyframeConfig:
     which nearly every solve is then cut short: TUM fr1/rpy 0.0146-0.0159 m, 1.44-1.61 deg (5 runs) -> 0.0089-
     0.0130 m, 1.03-1.21 deg, 12.1-13.1 -> 10.1-11.6 frames/s; HoloLens walk 0.59-0.71 m (50-52 keyframes) ->
     0.49-0.54 m (88); hand-held preset 0.066-0.071 -> 0.037 m; but generator walk 0.174-0.182 -> 0.218 m, walk 42
-    0.277-0.315 -> 0.297-0.380 m, corridor 0.32 m, 0.9 deg -> 0.71 m, 9.3 deg."""
+    0.277-0.315 -> 0.297-0.380 m, corridor 0.32 m, 0.9 deg -> 0.71 m, 9.3 deg. Again at the fortieth session's head
+    (three rounds alternating, same flags; refused -> taken): the HoloLens walk 0.33 / 0.77 (4 frames lost) / 0.31 m,
+    9.8-26.5 deg -> 0.21 / 0.21 / 0.17 m, 4.6-5.8 deg (52 -> 88 keyframes), TUM 1.46-1.56 -> 1.28-1.34 deg
+    (0.013-0.015 -> 0.013-0.016 m), the generator walk 0.16-0.20 -> 0.10 m, but the corridor 0.18 -> 0.25 m and the
+    hand-held preset 0.07-0.08 -> 0.08-0.10 m, at 1.3-1.8 times the wall time (HoloLens 40-42 -> 54-62 s, TUM
+    14-19 -> 18-27 s). Still off: the parallel mode's point is speed; set it for a parallel map that holds."""
     min_feature_inliers: int = 0
     """With features: a tracked frame whose pose rests on fewer ORB + PnP inliers against the keyframe than this
     becomes a keyframe (urgent, and exempt from the poor-photometric-fit hold), so that the next frames match its
