@@ -182,8 +182,7 @@ def mapping_text(summary: dict) -> str | None:
     if m["cut_short"]:
         text += (f"; {m['cut_short']} cut short by the tracker ({m['cut_before_first_iteration']} before their "
                  f"first iteration)")
-    if summary.get("window_rollbacks"):
-        n = summary["window_rollbacks"]
+    if n := summary.get("window_rollbacks"):
         text += f"; {n} undone by the window's checks (window_rejected and rolled_back in frames.csv)"
     if m["refused_busy"]:
         text += f"; {m['refused_busy']} frames asked for a keyframe while the mapping thread was busy"
