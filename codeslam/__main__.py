@@ -2,7 +2,7 @@
 
 import sys
 
-from codeslam.cli import main
+from codeslam.cli import entry
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

@@ -116,3 +116,20 @@ def test_progress_bar_takes_updates(quiet, capsys):
             update(k + 1, f"step {k}")
         update(3)
     assert capsys.readouterr().out == ""  # never on stdout, where the results go
+
+
+@pytest.mark.parametrize(("argv", "code"), [(["--help"], 0), (["info", "/nonexistent/dataset"], 2)])
+def test_the_console_entry_returns_the_commands_exit_code_and_freezes_the_heap_last(monkeypatch, capsys, argv,
+                                                                                    code):
+    """The console script (``codeslam``, ``python -m codeslam``) runs :func:`main` and only then freezes the
+    garbage collector's heap for the interpreter's shutdown; a failing command keeps its exit code."""
+    import codeslam.cli as cli
+
+    calls = []
+    monkeypatch.setattr(cli.sys, "argv", ["codeslam", *argv])
+    command = cli.main
+    monkeypatch.setattr(cli, "main", lambda: calls.append("main") or command())
+    monkeypatch.setattr(cli.gc, "freeze", lambda: calls.append("freeze"))
+    assert cli.entry() == code
+    assert calls == ["main", "freeze"]
+    capsys.readouterr()
