@@ -163,7 +163,8 @@ def test_normal_equations_are_the_dense_irls_system_and_the_cost_gradient(with_k
     if masked_rows == "common":
         n, N = int(ev.valid.sum()), ev.valid.numel()
         assert 0 < n < N  # some rows masked: the two costs differ
-        assert float(descended) < float(total) - 1e-6 * float(total)
+        descended_cost, total_cost = float(descended.detach()), float(total.detach())
+        assert descended_cost < total_cost - 1e-6 * total_cost
     torch.testing.assert_close(g, grad, atol=1e-8, rtol=1e-8)  # IRLS: J^T W r is the descended cost's gradient
 
     J = torch.autograd.functional.jacobian(lambda t: pieces(t)[1], torch.zeros(8, dtype=D))  # (rows, 8)
