@@ -3,16 +3,17 @@
 A change that helps one sequence and hurts another is not progress, so a change to tracking or mapping is read on
 all of them at once: the two shared real sequences (the HoloLens walk at every frame and at every second frame, TUM
 fr1/rpy), the generator's motion presets (walk, hand-held, corridor, two fast turns), five generator sequences
-that no setting was chosen on (seeds 41-45) and six added after the last setting was chosen (seeds 51-56: a 200-frame
+that no setting was chosen on (seeds 41-45), six added after the last setting was chosen (seeds 51-56: a 200-frame
 walk, a 300-frame hand-held, a noisy corridor, a walk at 30 frames/s, a fast turn at 10 frames/s, a walk towards a
-blank wall), with the network's depth, four of them again with the dataset's own depth (``--depth-model
-standin``), which separates the tracker from the network, and the walk towards a blank wall with the network's
-code Jacobian but the dataset's depth at the zero code (``--depth-model true-prior``), which separates the
-network's zero-code depth from the rest. ``--long`` adds a walk of 39 m, about three times the path of the other
-walks (seed 71, 450 frames), with the network's and the dataset's depth: whether tracking, the map's scale and memory
-hold over a long way.
+blank wall) and eight more added the same way (seeds 81-88: two walks, one of them noisy, two corridors, a noisy
+hand-held camera at 30 frames/s and one at 10 frames/s, a fast turn, a walk at 30 frames/s), with the network's
+depth, four of them again with the dataset's own depth (``--depth-model standin``), which separates the tracker
+from the network, and the walk towards a blank wall with the network's code Jacobian but the dataset's depth at the
+zero code (``--depth-model true-prior``), which separates the network's zero-code depth from the rest. ``--long``
+adds a walk of 39 m, about three times the path of the other walks (seed 71, 450 frames), with the network's and the
+dataset's depth: whether tracking, the map's scale and memory hold over a long way.
 
-The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 40 minutes on one
+The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 55 minutes on one
 core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DATA --out OUT/NAME -q`` plus the
 ``--`` arguments (``--threads 1`` by default, which makes the runs repeat to the byte and lets two share two
 cores; ``--weights W`` goes to every run but the stand-in ones, whose depth is the dataset's). The table reads each
@@ -80,6 +81,15 @@ SEQUENCES = {s.name: s for s in (
     Sequence("walk54", 300, "walk", 30, 54),
     Sequence("ft55", 60, "fast-turn", 10, 55),
     Sequence("walk56", 150, "walk", 10, 56),
+    # seeds 81-88: added after the last setting was chosen (2026-12-04, forty-second session), never tuned on
+    Sequence("walk81", 150, "walk", 10, 81),
+    Sequence("corr82", 150, "corridor", 10, 82),
+    Sequence("hh83", 150, "handheld", 30, 83, ("--noise", "0.01")),
+    Sequence("ft84", 120, "fast-turn", 30, 84),
+    Sequence("walk85", 150, "walk", 10, 85, ("--noise", "0.01")),
+    Sequence("corr86", 120, "corridor", 10, 86),
+    Sequence("walk87", 200, "walk", 30, 87),
+    Sequence("hh88", 150, "handheld", 10, 88),
     # seed 71: a walk of 39 m, about three times the other walks' paths (450 frames); rendered and run only with --long
     Sequence("walk71", 450, "walk", 10, 71),
 )}
@@ -105,6 +115,7 @@ RUNS = (
     ("walk54", "walk54", ()),
     ("ft55", "ft55", ()),
     ("walk56", "walk56", ()),
+    *((name, name, ()) for name in ("walk81", "corr82", "hh83", "ft84", "walk85", "corr86", "walk87", "hh88")),
     ("holo_standin", "hololens_dvmvs", ("--depth-model", "standin")),
     ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
     ("walk_standin", "walk10", ("--depth-model", "standin")),
