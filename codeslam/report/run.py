@@ -169,11 +169,11 @@ def frame_statuses(run: RunFiles) -> tuple[np.ndarray, list[str], list[str]]:
 def mapping_text(summary: dict) -> str | None:
     """The summary's line on the window solves (``result.json``'s ``mapping`` mode and ``mapping_statistics``),
     how many were undone (``window_rollbacks``: a solve the window's checks rejected, or one after which the next
-    frame could not be tracked; ``frames.csv`` says why on the keyframe's row), and a hint when parallel mapping
-    fell behind the camera (more than half of its solves cut short); None for a run written before the statistics
-    were. The undone solves are the map's trouble spots: on the HoloLens walk none at every frame, 5-11 of 50 at
-    every second frame and 10-13 of 51 in parallel mode (docs/results/slam_table.md, session of 2026-12-04,
-    fortieth)."""
+    frame could not be tracked; ``frames.csv`` says why on the keyframe's row), a hint when parallel mapping fell
+    behind the camera (more than half of its solves cut short), and the option that takes the keyframes it refused;
+    None for a run written before the statistics were. The undone solves are the map's trouble spots: on the
+    HoloLens walk none at every frame, 5-11 of 50 at every second frame and 10-13 of 51 in parallel mode
+    (docs/results/slam_table.md, session of 2026-12-04, fortieth)."""
     m, mode = summary.get("mapping_statistics"), str(summary.get("mapping", "?"))
     if not isinstance(m, dict):
         return None
@@ -184,8 +184,10 @@ def mapping_text(summary: dict) -> str | None:
                  f"first iteration)")
     if n := summary.get("window_rollbacks"):
         text += f"; {n} undone by the window's checks (window_rejected and rolled_back in frames.csv)"
-    if m["refused_busy"]:
-        text += f"; {m['refused_busy']} frames asked for a keyframe while the mapping thread was busy"
+    if m["refused_busy"]:  # the option that takes them: measured to hold the parallel HoloLens map at 1.3-1.8x
+        # the wall time (docs/results/slam_table.md, fortieth session)
+        text += (f"; {m['refused_busy']} frames asked for a keyframe while the mapping thread was busy "
+                 "(keyframes: {take_when_busy: true} in a --config takes them)")
     if mode == "parallel" and 2 * m["cut_short"] > m["window_solves"]:
         text += "; the mapping fell behind the camera (--sequential solves every window in full)"
     return text

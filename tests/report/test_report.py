@@ -225,7 +225,8 @@ def test_a_folder_that_is_not_a_run_is_a_one_line_error(tmp_path):
 
 def test_the_mapping_line_says_when_parallel_mapping_fell_behind(tmp_path):
     """The summary's and the report's line on the window solves: counts as the run stored them, and the hint to
-    map sequentially only where parallel mapping cut more than half of its solves short."""
+    map sequentially only where parallel mapping cut more than half of its solves short, and the option that takes
+    the keyframes it refused only where it refused some."""
     behind = {"window_solves": 50, "cut_short": 47, "cut_before_first_iteration": 18, "median_iterations": 2.0,
               "refused_busy": 0}
     text = mapping_text({"mapping": "parallel", "mapping_statistics": behind})
@@ -237,6 +238,10 @@ def test_the_mapping_line_says_when_parallel_mapping_fell_behind(tmp_path):
                          "mapping_statistics": {**behind, "cut_short": 0, "cut_before_first_iteration": 0}}) == (
         "sequential: 50 window solves, median 2 iterations")
     assert mapping_text({"mapping": "sequential"}) is None  # a run from before the statistics
+    refused = mapping_text({"mapping": "parallel", "mapping_statistics": {**behind, "refused_busy": 77}})
+    assert ("77 frames asked for a keyframe while the mapping thread was busy (keyframes: {take_when_busy: true}"
+            in refused)
+    assert "take_when_busy" not in text  # none refused: no hint
     undone = mapping_text({"mapping": "sequential", "window_rollbacks": 11,
                            "mapping_statistics": {**behind, "cut_short": 0, "cut_before_first_iteration": 0}})
     assert undone.startswith("sequential: 50 window solves, median 2 iterations; 11 undone by the window's checks")
