@@ -51,7 +51,8 @@ class TrackerConfig:
     affine_brightness: bool = True
     """Estimate a gain and bias between keyframe and frame (exposure changes, paper Sec. 5.2)."""
     motion_model: str = "constant_velocity"
-    """Initial guess and failure fallback: 'constant_velocity' (repeat the last inter-frame motion) or 'static'."""
+    """Initial guess and failure fallback: 'constant_velocity' (the last inter-frame motion's velocity carried over
+    the time to the frame: one motion per frame at a steady frame rate, more after dropped frames) or 'static'."""
     motion_prior_acceleration: float = 4.0
     """A soft prior on the frame's pose at the motion model's prediction, as a constant-velocity model's process
     noise: the acceleration (map units, ~metres, per s²) that the prediction leaves unexplained. The translation's

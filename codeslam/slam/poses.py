@@ -9,9 +9,15 @@ compounds geometrically from frame to frame (measured on a generator sequence: d
 
 from __future__ import annotations
 
+import math
+
 import torch
 
-from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+from codeslam.geometry.lie import se3_exp, se3_exp_host, se3_inverse, se3_log, se3_log_host
+
+TIME_RATIO_TOLERANCE = 1e-4
+"""Interval ratios closer to 1 than this are 1: timestamps written with microseconds (TUM's files) make equal frame
+intervals differ by up to ~3e-5 of a 30 frames/s interval."""
 
 
 def project_to_se3(T: torch.Tensor) -> torch.Tensor:
@@ -44,3 +50,15 @@ def spread_correction(T_ref: torch.Tensor, T_next: torch.Tensor, fraction: torch
     xi = se3_log(se3_inverse(T_ref) @ T_next)  # (n, 6)
     f = fraction.to(torch.float64).clamp(0.0, 1.0).unsqueeze(-1)
     return project_to_se3(T_ref @ se3_exp(f * xi))
+
+
+def scale_motion(motion: torch.Tensor, s: float) -> torch.Tensor:
+    """A constant velocity's motion over ``s`` times the interval of ``motion``: (4, 4) ``T_prev^-1 T_cur`` ->
+    ``Exp(s Log(motion))`` (the same camera-frame twist for s times as long); ``motion`` itself when s is 1 within
+    :data:`TIME_RATIO_TOLERANCE` or not finite (frames without usable timestamps: one motion a frame), the
+    identity for s <= 0."""
+    if not math.isfinite(s) or abs(s - 1.0) < TIME_RATIO_TOLERANCE:
+        return motion
+    if s <= 0.0:
+        return torch.eye(4, dtype=motion.dtype, device=motion.device)
+    return se3_exp_host(s * se3_log_host(motion.to(torch.float64))).to(motion.dtype)

@@ -57,7 +57,7 @@ from codeslam.slam.features import Features, scaled_camera
 from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
 from codeslam.slam.keyframes import MAPPING_BUSY, KeyframeDecision, decide_keyframe, motion_since_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult, torch_threads
-from codeslam.slam.poses import project_to_se3, spread_correction
+from codeslam.slam.poses import project_to_se3, scale_motion, spread_correction
 from codeslam.slam.readout import CANDIDATES, ReadoutChoice
 from codeslam.slam.smoothing import smooth_positions
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
@@ -315,7 +315,7 @@ class CodeSLAM:
         if not self.keyframes:  # the first frame is the map's origin
             return self._start_map(views)
         ref = self.ref
-        T_kf_guess = self._predict(ref)
+        T_kf_guess = self._predict(ref, frame.timestamp)
         if not image_is_finite(views.frame.image):
             return self._lost_frame(views, ref, T_kf_guess, None, "non-finite pixels in the image")
         with self.clock("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
@@ -336,7 +336,7 @@ class CodeSLAM:
             ref = self.ref
             views = self._with_features(views)
             with self.clock("track"):
-                track, sparse, source = self._track(views, ref, self._predict(ref))
+                track, sparse, source = self._track(views, ref, self._predict(ref, frame.timestamp))
         self._undo = None
         if not track.ok and self.mapper.busy:
             # Parallel mode: the keyframe asked for on an earlier frame may be decoded by now or still being
@@ -350,12 +350,12 @@ class CodeSLAM:
                 ref = self.ref
                 views = self._with_features(views)
                 with self.clock("track"):
-                    track, sparse, source = self._track(views, ref, self._predict(ref))
+                    track, sparse, source = self._track(views, ref, self._predict(ref, frame.timestamp))
         if not track.ok and self._promote_last():  # the previous frame, tracked, becomes the reference
             ref = self.ref
             views = self._with_features(views)
             with self.clock("track"):
-                track, sparse, source = self._track(views, ref, self._predict(ref))
+                track, sparse, source = self._track(views, ref, self._predict(ref, frame.timestamp))
         if not track.ok:
             views = self._with_features(views)
             with self.clock("relocalise"):
@@ -686,7 +686,8 @@ class CodeSLAM:
         if self.readout <= 0:
             return _Views(net, keypoints, raw, input_frame=kept)
         with self.clock("resample"):
-            return self._rectified_views(raw, self._readout_rotation(self._last_motion()), kept)
+            last = self._last_motion()  # the rotation over one frame interval, the unit of the readout
+            return self._rectified_views(raw, self._readout_rotation(None if last is None else last[0]), kept)
 
     def _with_features(self, views: _Views) -> _Views:
         """``views`` with the keypoints of a frame whose extraction was put off (FeatureConfig.direct_first),
@@ -839,14 +840,20 @@ class CodeSLAM:
     def _pose(self, rec: _FrameRecord) -> torch.Tensor:
         return self.keyframes[rec.keyframe_id].T_wc @ rec.T_kf
 
-    def _predict(self, ref: MapKeyframe) -> torch.Tensor:
-        """The frame's pose in ``ref`` predicted by the motion model: the last pose moved by the last inter-frame
-        motion between two successfully tracked frames (constant velocity; a failed frame's guessed pose never
-        feeds the velocity, so guesses cannot compound), or the last pose ('static')."""
-        T_pred = self._pose(self._records[-1])
-        motion = self._last_motion() if self.config.tracker.motion_model == "constant_velocity" else None
-        if motion is not None:
-            T_pred = T_pred @ motion
+    def _predict(self, ref: MapKeyframe, timestamp: float) -> torch.Tensor:
+        """The pose in ``ref`` of the frame at ``timestamp`` predicted by the motion model: the last pose moved by
+        the last inter-frame motion between two successfully tracked frames (constant velocity; a failed frame's
+        guessed pose never feeds the velocity, so guesses cannot compound), or the last pose ('static'). The motion
+        is that of the camera's velocity over the time to this frame: ``exp(s log M)`` with ``s`` this interval over
+        the motion's, so that a frame after a dropped one, or a video's uneven frame times, is predicted where a
+        constant velocity takes it (a walk with four frames dropped at a turn: 29 deg from the last frame, against
+        the 5 deg of one frame's motion; docs/results/slam_table.md, session of 2026-12-05)."""
+        last = self._records[-1]
+        T_pred = self._pose(last)
+        found = self._last_motion() if self.config.tracker.motion_model == "constant_velocity" else None
+        if found is not None:
+            motion, dt = found
+            T_pred = T_pred @ scale_motion(motion, (timestamp - last.timestamp) / dt)  # dt > 0: timestamps increase
         return se3_inverse(ref.T_wc) @ T_pred
 
     def _since_tracked(self, frame: Frame) -> float | None:
@@ -855,17 +862,19 @@ class CodeSLAM:
         last = next((r for r in reversed(self._records) if r.ok), None)
         return None if last is None else float(frame.timestamp) - last.timestamp
 
-    def _last_motion(self) -> torch.Tensor | None:
-        """``T_prev^-1 T_cur`` of the last two successfully tracked consecutive frames (None before there are two):
-        the motion model's velocity. When the later frame has since become a keyframe, the motion is taken as the
-        two were tracked against their common keyframe: its pose now is the window's, and the window's correction
-        of it is not the camera's motion. (On the generator's fast turn a window moved such a keyframe 7 cm while
-        the camera moved 2 mm; with the motion prior on, the next 60 frames kept moving 6-9 cm per frame.)"""
+    def _last_motion(self) -> tuple[torch.Tensor, float] | None:
+        """``T_prev^-1 T_cur`` of the last two successfully tracked consecutive frames and the seconds between
+        them (None before there are two): the motion model's velocity. When the later frame has since become a
+        keyframe, the motion is taken as the two were tracked against their common keyframe: its pose now is the
+        window's, and the window's correction of it is not the camera's motion. (On the generator's fast turn a
+        window moved such a keyframe 7 cm while the camera moved 2 mm; with the motion prior on, the next 60 frames
+        kept moving 6-9 cm per frame.)"""
         for prev, cur in zip(reversed(self._records[:-1]), reversed(self._records)):
             if prev.ok and cur.ok:
+                dt = cur.timestamp - prev.timestamp
                 if cur.keyframe_id != cur.tracked_id and prev.tracked_id == cur.tracked_id:
-                    return se3_inverse(prev.T_tracked) @ cur.T_tracked
-                return se3_inverse(self._pose(prev)) @ self._pose(cur)
+                    return se3_inverse(prev.T_tracked) @ cur.T_tracked, dt
+                return se3_inverse(self._pose(prev)) @ self._pose(cur), dt
         return None
 
     def _affine_guess(self, ref: MapKeyframe) -> torch.Tensor | None:

@@ -119,11 +119,11 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
                                                                 rolling_shutter_estimate=False))
     system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
     system.camera = frames[0].camera
-    assert system._last_motion() is None and system._readout_rotation(system._last_motion()) is None
+    assert system._last_motion() is None and system._readout_rotation(None) is None
     for f in frames[:3]:
         system.process(f)
     T = se3_inverse(system._pose(system._records[-2])) @ system._pose(system._records[-1])
-    omega = system._readout_rotation(system._last_motion())
+    omega = system._readout_rotation(system._last_motion()[0])
     assert torch.allclose(omega, 0.5 * so3_log(T[:3, :3]), atol=1e-12) and float(omega.norm()) > 1e-3
     views = system._views(frames[3])
     expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera, omega))
@@ -159,11 +159,32 @@ def test_the_motion_models_velocity_leaves_out_the_windows_correction_of_a_new_k
     eye = torch.eye(4, dtype=D)
     system._records = [_FrameRecord(1, 0.1, 0, A, True, None, 0, A),
                        _FrameRecord(2, 0.2, 1, eye, True, None, 0, B)]  # frame 2 became keyframe 1
-    torch.testing.assert_close(system._last_motion(), se3_inverse(A) @ B)
+    torch.testing.assert_close(system._last_motion()[0], se3_inverse(A) @ B)
     # the next frame, tracked against keyframe 1: the motion from the keyframe is the keyframe-relative pose
     C = se3_exp(torch.tensor([0.02, 0.0, 0.0, 0.0, 0.02, 0.0], dtype=D))
     system._records.append(_FrameRecord(3, 0.3, 1, C, True, None, 1, C))
-    torch.testing.assert_close(system._last_motion(), C)
+    torch.testing.assert_close(system._last_motion()[0], C)
+
+
+def test_the_motion_model_predicts_with_the_velocity_over_the_time_to_the_frame():
+    """Constant velocity over time, not over frames: a frame after dropped ones (or a video's uneven frame times)
+    is predicted Exp(s Log M) from the last pose, s its interval over the last motion's; equal intervals (to the
+    microseconds timestamps carry) repeat the motion exactly, and a frame half an interval on gets half of it."""
+    from types import SimpleNamespace
+
+    from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+    from codeslam.slam.system import _FrameRecord
+
+    system = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
+    D = torch.float64
+    ref = SimpleNamespace(T_wc=torch.eye(4, dtype=D))
+    system.keyframes = [ref]
+    xi = torch.tensor([0.08, -0.01, 0.02, 0.01, 0.09, -0.02], dtype=D)  # 8 cm and 5 deg a frame, as on a walk
+    A, B = se3_exp(xi), se3_exp(2 * xi)
+    system._records = [_FrameRecord(1, 0.1, 0, A, True, None, 0, A), _FrameRecord(2, 0.2, 0, B, True, None, 0, B)]
+    assert torch.equal(system._predict(ref, 0.3 + 1e-6), B @ (se3_inverse(A) @ B))  # one interval: M itself
+    torch.testing.assert_close(system._predict(ref, 0.7), se3_exp(7 * xi), atol=1e-12, rtol=0)  # four dropped
+    torch.testing.assert_close(se3_log(system._predict(ref, 0.25)), 2.5 * xi, atol=1e-12, rtol=0)
 
 
 def test_the_motion_priors_interval_runs_from_the_last_tracked_frame():
