@@ -15,10 +15,6 @@ import torch
 
 from codeslam.geometry.lie import se3_exp, se3_exp_host, se3_inverse, se3_log, se3_log_host
 
-TIME_RATIO_TOLERANCE = 1e-4
-"""Interval ratios closer to 1 than this are 1: timestamps written with microseconds (TUM's files) make equal frame
-intervals differ by up to ~3e-5 of a 30 frames/s interval."""
-
 
 def project_to_se3(T: torch.Tensor) -> torch.Tensor:
     """(..., 4, 4) -> the same transforms in float64 on the CPU with the rotation replaced by the closest rotation
@@ -54,10 +50,9 @@ def spread_correction(T_ref: torch.Tensor, T_next: torch.Tensor, fraction: torch
 
 def scale_motion(motion: torch.Tensor, s: float) -> torch.Tensor:
     """A constant velocity's motion over ``s`` times the interval of ``motion``: (4, 4) ``T_prev^-1 T_cur`` ->
-    ``Exp(s Log(motion))`` (the same camera-frame twist for s times as long); ``motion`` itself when s is 1 within
-    :data:`TIME_RATIO_TOLERANCE` or not finite (frames without usable timestamps: one motion a frame), the
-    identity for s <= 0."""
-    if not math.isfinite(s) or abs(s - 1.0) < TIME_RATIO_TOLERANCE:
+    ``Exp(s Log(motion))`` (the same camera-frame twist for s times as long); ``motion`` itself when s is 1 or not
+    finite (frames without usable timestamps: one motion a frame), the identity for s <= 0."""
+    if not math.isfinite(s) or s == 1.0:
         return motion
     if s <= 0.0:
         return torch.eye(4, dtype=motion.dtype, device=motion.device)

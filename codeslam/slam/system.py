@@ -75,6 +75,9 @@ INITIALISING, TRACKED, RELOCALISED, PREDICTED = "initialising", "tracked", "relo
 STATUSES = (INITIALISING, TRACKED, RELOCALISED, PREDICTED)
 
 
+PERIOD_FRAMES = 30
+"""The last frames whose intervals give the camera's frame period (their median: dropped frames are the exception)."""
+
 @dataclass
 class FrameResult:
     """What :meth:`CodeSLAM.process` did with one frame.
@@ -406,7 +409,8 @@ class CodeSLAM:
         choosing = self.readout_choice is not None and not self.readout_choice.final
         # its rotation from the last frame (None for the first), needed while the readout is being chosen and to
         # rectify a new keyframe under a readout
-        turn = self._turn_from_last(T_wc) if choosing or (decision.add and self.readout > 0) else None
+        wanted = choosing or (decision.add and self.readout > 0)
+        turn = self._turn_from_last(T_wc, views.frame.timestamp) if wanted else None
         estimating = choosing and turn is not None and self._records[-1].ok
         if estimating:
             self._estimate_readout(views, ref, track, turn)
@@ -686,8 +690,9 @@ class CodeSLAM:
         if self.readout <= 0:
             return _Views(net, keypoints, raw, input_frame=kept)
         with self.clock("resample"):
-            last = self._last_motion()  # the rotation over one frame interval, the unit of the readout
-            return self._rectified_views(raw, self._readout_rotation(None if last is None else last[0]), kept)
+            last = self._last_motion()
+            omega = None if last is None else self._readout_rotation(*last)
+            return self._rectified_views(raw, omega, kept)
 
     def _with_features(self, views: _Views) -> _Views:
         """``views`` with the keypoints of a frame whose extraction was put off (FeatureConfig.direct_first),
@@ -724,20 +729,42 @@ class CodeSLAM:
             return views
         return self._rectified_views(views.raw, self.readout * turn)
 
-    def _readout_rotation(self, motion: torch.Tensor | None) -> torch.Tensor | None:
+    def _readout_rotation(self, motion: torch.Tensor | None, dt: float) -> torch.Tensor | None:
         """The camera's rotation over the sensor's readout: the readout (``tracker.rolling_shutter_readout`` or
-        the estimate) times the rotation of ``motion`` (``T_prev^-1 T_cur``, so R_cur = R_prev Exp(omega): in the
-        camera frame); float64 (3,) on the CPU, where frames are rectified, or None without a motion."""
+        the estimate, a fraction of the frame period) times the rotation of ``motion`` (``T_prev^-1 T_cur`` over
+        ``dt`` s, so R_cur = R_prev Exp(omega): in the camera frame) in one frame period (:meth:`_per_period`);
+        float64 (3,) on the CPU, where frames are rectified, or None without a motion."""
         if motion is None:
             return None
-        return self.readout * so3_log(motion[:3, :3].to(torch.float64)).cpu()
+        return self.readout * self._per_period(so3_log(motion[:3, :3].to(torch.float64)).cpu(), dt)
 
-    def _turn_from_last(self, T_wc: torch.Tensor) -> torch.Tensor | None:
-        """The rotation vector (float64 (3,) on the CPU, camera frame) from the last frame to a frame at ``T_wc``;
-        None before any frame."""
+    def _periods(self, dt: float) -> float:
+        """Frame periods in ``dt`` s, rounded to whole ones and at least 1: a camera's frames come at its rate, a
+        dropped frame makes one interval two, and the timestamps' own jitter (TUM fr1/rpy: 29-39 ms at 30 frames/s)
+        is left out, so evenly timed frames count 1 each as before. The period is the median interval of the last
+        :data:`PERIOD_FRAMES` frames; NaN before there are two frames or without usable times."""
+        t = [r.timestamp for r in self._records[-PERIOD_FRAMES:]]
+        if len(t) < 2 or not math.isfinite(dt) or not dt > 0:
+            return math.nan
+        return float(max(1, round(dt / float(np.median(np.diff(t))))))
+
+    def _per_period(self, turn: torch.Tensor, dt: float) -> torch.Tensor:
+        """A rotation vector turned over ``dt`` s, as the same angular velocity turns in one frame period: the
+        readout is a fraction of that period. Measured on TUM fr1/rpy (a Kinect's rolling shutter) with a tenth of
+        its frames dropped at random: rectified by the rotation over two periods after each dropped frame, the run
+        ended 0.0378 m and 2.83 deg off, against 0.0117 m and 1.34 deg with every frame
+        (docs/results/slam_table.md, session of 2026-12-05)."""
+        k = self._periods(dt)
+        return turn / k if k > 1 else turn
+
+    def _turn_from_last(self, T_wc: torch.Tensor, timestamp: float) -> torch.Tensor | None:
+        """The rotation vector (float64 (3,) on the CPU, camera frame) from the last frame to a frame at ``T_wc``
+        and ``timestamp``, in one frame period (:meth:`_per_period`); None before any frame."""
         if not self._records:
             return None
-        return so3_log((se3_inverse(self._pose(self._records[-1])) @ T_wc)[:3, :3].to(torch.float64)).cpu()
+        last = self._records[-1]
+        turn = so3_log((se3_inverse(self._pose(last)) @ T_wc)[:3, :3].to(torch.float64)).cpu()
+        return self._per_period(turn, timestamp - last.timestamp)
 
     def _estimate_readout(self, views: _Views, ref: MapKeyframe, track: TrackResult, turn: torch.Tensor) -> None:
         """Weigh a tracked frame (``turn`` from a tracked last frame) for the readout when it turns against its
@@ -845,15 +872,15 @@ class CodeSLAM:
         the last inter-frame motion between two successfully tracked frames (constant velocity; a failed frame's
         guessed pose never feeds the velocity, so guesses cannot compound), or the last pose ('static'). The motion
         is that of the camera's velocity over the time to this frame: ``exp(s log M)`` with ``s`` this interval over
-        the motion's, so that a frame after a dropped one, or a video's uneven frame times, is predicted where a
-        constant velocity takes it (a walk with four frames dropped at a turn: 29 deg from the last frame, against
-        the 5 deg of one frame's motion; docs/results/slam_table.md, session of 2026-12-05)."""
+        the motion's, each in whole frame periods (:meth:`_periods`), so that a frame after dropped ones is
+        predicted where a constant velocity takes it (a walk with four frames dropped at a turn: 29 deg from the
+        last frame, against the 5 deg of one frame's motion; docs/results/slam_table.md, session of 2026-12-05)."""
         last = self._records[-1]
         T_pred = self._pose(last)
         found = self._last_motion() if self.config.tracker.motion_model == "constant_velocity" else None
         if found is not None:
             motion, dt = found
-            T_pred = T_pred @ scale_motion(motion, (timestamp - last.timestamp) / dt)  # dt > 0: timestamps increase
+            T_pred = T_pred @ scale_motion(motion, self._periods(timestamp - last.timestamp) / self._periods(dt))
         return se3_inverse(ref.T_wc) @ T_pred
 
     def _since_tracked(self, frame: Frame) -> float | None:

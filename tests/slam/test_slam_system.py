@@ -119,11 +119,11 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
                                                                 rolling_shutter_estimate=False))
     system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
     system.camera = frames[0].camera
-    assert system._last_motion() is None and system._readout_rotation(None) is None
+    assert system._last_motion() is None and system._readout_rotation(None, 0.1) is None
     for f in frames[:3]:
         system.process(f)
     T = se3_inverse(system._pose(system._records[-2])) @ system._pose(system._records[-1])
-    omega = system._readout_rotation(system._last_motion()[0])
+    omega = system._readout_rotation(*system._last_motion())
     assert torch.allclose(omega, 0.5 * so3_log(T[:3, :3]), atol=1e-12) and float(omega.norm()) > 1e-3
     views = system._views(frames[3])
     expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera, omega))
@@ -131,7 +131,7 @@ def test_a_rolling_shutter_readout_rectifies_each_frame_by_the_motion_models_rot
     # a new keyframe is rectified again with the rotation from the last frame to its tracked pose
     T_wc = system._pose(system._records[-1]) @ se3_exp(torch.tensor([0.0, 0.0, 0.01, 0.0, 0.02, 0.0],
                                                                     dtype=torch.float64))
-    kviews = system._rerectified(views, system._turn_from_last(T_wc))
+    kviews = system._rerectified(views, system._turn_from_last(T_wc, frames[3].timestamp))
     expected, _ = rectify_image(frames[3].image, source_pixels(frames[3].camera, frames[3].camera,
                                                                0.5 * torch.tensor([0.0, 0.02, 0.0])))
     assert torch.allclose(kviews.frame.image, expected, atol=1e-5)
@@ -167,12 +167,12 @@ def test_the_motion_models_velocity_leaves_out_the_windows_correction_of_a_new_k
 
 
 def test_the_motion_model_predicts_with_the_velocity_over_the_time_to_the_frame():
-    """Constant velocity over time, not over frames: a frame after dropped ones (or a video's uneven frame times)
-    is predicted Exp(s Log M) from the last pose, s its interval over the last motion's; equal intervals (to the
-    microseconds timestamps carry) repeat the motion exactly, and a frame half an interval on gets half of it."""
+    """Constant velocity over time, not over frames: a frame after dropped ones is predicted Exp(s Log M) from the
+    last pose, s its interval over the last motion's in whole frame periods; evenly timed frames, the timestamps'
+    jitter included, repeat the motion exactly."""
     from types import SimpleNamespace
 
-    from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+    from codeslam.geometry.lie import se3_exp, se3_inverse
     from codeslam.slam.system import _FrameRecord
 
     system = CodeSLAM(small_config(size=3), standin_depth_model(num_levels=3))
@@ -181,10 +181,39 @@ def test_the_motion_model_predicts_with_the_velocity_over_the_time_to_the_frame(
     system.keyframes = [ref]
     xi = torch.tensor([0.08, -0.01, 0.02, 0.01, 0.09, -0.02], dtype=D)  # 8 cm and 5 deg a frame, as on a walk
     A, B = se3_exp(xi), se3_exp(2 * xi)
-    system._records = [_FrameRecord(1, 0.1, 0, A, True, None, 0, A), _FrameRecord(2, 0.2, 0, B, True, None, 0, B)]
-    assert torch.equal(system._predict(ref, 0.3 + 1e-6), B @ (se3_inverse(A) @ B))  # one interval: M itself
+    system._records = [_FrameRecord(0, 0.0, 0, torch.eye(4, dtype=D), True, None, 0, torch.eye(4, dtype=D)),
+                       _FrameRecord(1, 0.1, 0, A, True, None, 0, A), _FrameRecord(2, 0.2, 0, B, True, None, 0, B)]
+    M = se3_inverse(A) @ B
+    for t in (0.3, 0.3 + 1e-6, 0.33, 0.27):  # one period, to the timestamps' jitter: M itself
+        assert torch.equal(system._predict(ref, t), B @ M)
     torch.testing.assert_close(system._predict(ref, 0.7), se3_exp(7 * xi), atol=1e-12, rtol=0)  # four dropped
-    torch.testing.assert_close(se3_log(system._predict(ref, 0.25)), 2.5 * xi, atol=1e-12, rtol=0)
+    torch.testing.assert_close(system._predict(ref, 0.41), se3_exp(4 * xi), atol=1e-12, rtol=0)  # one, late
+
+
+def test_the_rolling_shutter_rectification_turns_by_one_frame_period_after_dropped_frames():
+    """The readout is a fraction of the frame period: after a dropped frame the last motion spans two periods and
+    the rectification takes half of its rotation, the keyframe's turn from the last frame likewise (with every
+    frame, 0.0117 m on TUM fr1/rpy; rectified by two periods' rotation after each of a tenth dropped, 0.0378 m)."""
+    from types import SimpleNamespace
+
+    from codeslam.geometry.lie import se3_exp, so3_log
+    from codeslam.slam.system import _FrameRecord
+
+    cfg = small_config(size=3)
+    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_readout=0.5,
+                                                                rolling_shutter_estimate=False))
+    system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
+    D = torch.float64
+    eye = torch.eye(4, dtype=D)
+    system.keyframes = [SimpleNamespace(T_wc=eye)]
+    system._records = [_FrameRecord(i, 0.1 * i, 0, eye, True, None, 0, eye) for i in range(4)]
+    M = se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.02, 0.06, -0.01], dtype=D))
+    omega = 0.5 * so3_log(M[:3, :3])
+    assert torch.equal(system._readout_rotation(M, 0.1), omega)
+    assert torch.equal(system._readout_rotation(M, 0.118), omega)  # jitter: one period
+    torch.testing.assert_close(system._readout_rotation(M, 0.2), omega / 2, atol=1e-15, rtol=0)
+    torch.testing.assert_close(system._turn_from_last(M, 0.3 + 0.3), so3_log(M[:3, :3]) / 3, atol=1e-15, rtol=0)
+    assert torch.equal(system._turn_from_last(M, 0.3 + 0.1), so3_log(M[:3, :3]))
 
 
 def test_the_motion_priors_interval_runs_from_the_last_tracked_frame():
