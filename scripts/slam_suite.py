@@ -2,16 +2,18 @@
 
 A change that helps one sequence and hurts another is not progress, so a change to tracking or mapping is read on
 all of them at once: the two shared real sequences (the HoloLens walk at every frame and at every second frame, TUM
-fr1/rpy), the generator's motion presets (walk, hand-held, corridor, two fast turns), five generator sequences
-that no setting was chosen on (seeds 41-45), six added after the last setting was chosen (seeds 51-56: a 200-frame
-walk, a 300-frame hand-held, a noisy corridor, a walk at 30 frames/s, a fast turn at 10 frames/s, a walk towards a
-blank wall) and eight more added the same way (seeds 81-88: two walks, one of them noisy, two corridors, a noisy
-hand-held camera at 30 frames/s and one at 10 frames/s, a fast turn, a walk at 30 frames/s), with the network's
-depth, four of them again with the dataset's own depth (``--depth-model standin``), which separates the tracker
-from the network, and the walk towards a blank wall with the network's code Jacobian but the dataset's depth at the
-zero code (``--depth-model true-prior``), which separates the network's zero-code depth from the rest. ``--long``
-adds a walk of 39 m, about three times the path of the other walks (seed 71, 450 frames), with the network's and the
-dataset's depth: whether tracking, the map's scale and memory hold over a long way.
+fr1/rpy), the generator's motion presets (walk, hand-held, corridor, two fast turns), five generator sequences that
+no setting was chosen on (seeds 41-45), six added after the last setting was chosen (seeds 51-56: a 200-frame walk,
+a 300-frame hand-held, a noisy corridor, a walk at 30 frames/s, a fast turn at 10 frames/s, a walk towards a blank
+wall) and eight more added the same way (seeds 81-88: two walks, one of them noisy, two corridors, a noisy hand-held
+camera at 30 frames/s and one at 10 frames/s, a fast turn, a walk at 30 frames/s), four runs with frames dropped
+(four at the HoloLens walk's fastest turn; a tenth of the HoloLens and the TUM frames and a fifth of corridor 82's
+at random, ``--frames`` lists), with the network's depth, four of them again with the dataset's own depth
+(``--depth-model standin``), which separates the tracker from the network, and the walk towards a blank wall with
+the network's code Jacobian but the dataset's depth at the zero code (``--depth-model true-prior``), which separates
+the network's zero-code depth from the rest. ``--long`` adds a walk of 39 m, about three times the path of the other
+walks (seed 71, 450 frames), with the network's and the dataset's depth: whether tracking, the map's scale and
+memory hold over a long way.
 
 The generator sequences are rendered on first use under ``--seqs`` (``codeslam synth``, about 55 minutes on one
 core; reused after that). Runs go ``--jobs`` at a time, each ``codeslam slam DATA --out OUT/NAME -q`` plus the
@@ -36,6 +38,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -94,6 +98,13 @@ SEQUENCES = {s.name: s for s in (
     Sequence("walk71", 450, "walk", 10, 71),
 )}
 
+def dropped(frames: int, keep: float, seed: int) -> str:
+    """``--frames`` for a sequence of ``frames`` frames with frames dropped at random, each kept with probability
+    ``keep`` (frame 0 always): the uneven intervals of a live capture that falls behind or of a phone's video."""
+    rng = np.random.default_rng(seed)
+    return ",".join(str(i) for i in [0] + [i for i in range(1, frames) if rng.random() < keep])
+
+
 # (run name, dataset: a folder under ../shared/data or a generator sequence's name, extra codeslam slam arguments)
 RUNS = (
     ("holo", "hololens_dvmvs", ()),
@@ -116,6 +127,12 @@ RUNS = (
     ("ft55", "ft55", ()),
     ("walk56", "walk56", ()),
     *((name, name, ()) for name in ("walk81", "corr82", "hh83", "ft84", "walk85", "corr86", "walk87", "hh88")),
+    # frames dropped (added 2026-12-05, forty-third session): four at the HoloLens walk's fastest turn (29 deg and
+    # 36 cm between the frames either side), and a tenth or a fifth at random
+    ("holo_gap4", "hololens_dvmvs", ("--frames", "0:120,124:188")),
+    ("holo_drop10", "hololens_dvmvs", ("--frames", dropped(188, 0.9, 11))),
+    ("tum_drop10", "tum_fr1_rpy", ("--frames", dropped(190, 0.9, 12))),
+    ("corr82_drop20", "corr82", ("--frames", dropped(150, 0.8, 13))),
     ("holo_standin", "hololens_dvmvs", ("--depth-model", "standin")),
     ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
     ("walk_standin", "walk10", ("--depth-model", "standin")),
