@@ -78,6 +78,7 @@ STATUSES = (INITIALISING, TRACKED, RELOCALISED, PREDICTED)
 PERIOD_FRAMES = 30
 """The last frames whose intervals give the camera's frame period (their median: dropped frames are the exception)."""
 
+
 @dataclass
 class FrameResult:
     """What :meth:`CodeSLAM.process` did with one frame.
@@ -752,7 +753,7 @@ class CodeSLAM:
         """A rotation vector turned over ``dt`` s, as the same angular velocity turns in one frame period: the
         readout is a fraction of that period. Measured on TUM fr1/rpy (a Kinect's rolling shutter) with a tenth of
         its frames dropped at random: rectified by the rotation over two periods after each dropped frame, the run
-        ended 0.0378 m and 2.83 deg off, against 0.0117 m and 1.34 deg with every frame
+        ended 0.0378 m and 2.8 deg off (now 0.0162 m, 1.6 deg), against 0.0117 m and 1.34 deg with every frame
         (docs/results/slam_table.md, session of 2026-12-05)."""
         k = self._periods(dt)
         return turn / k if k > 1 else turn
