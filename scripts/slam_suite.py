@@ -98,6 +98,7 @@ SEQUENCES = {s.name: s for s in (
     Sequence("walk71", 450, "walk", 10, 71),
 )}
 
+
 def dropped(frames: int, keep: float, seed: int) -> str:
     """``--frames`` for a sequence of ``frames`` frames with frames dropped at random, each kept with probability
     ``keep`` (frame 0 always): the uneven intervals of a live capture that falls behind or of a phone's video."""

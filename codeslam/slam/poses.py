@@ -50,10 +50,8 @@ def spread_correction(T_ref: torch.Tensor, T_next: torch.Tensor, fraction: torch
 
 def scale_motion(motion: torch.Tensor, s: float) -> torch.Tensor:
     """A constant velocity's motion over ``s`` times the interval of ``motion``: (4, 4) ``T_prev^-1 T_cur`` ->
-    ``Exp(s Log(motion))`` (the same camera-frame twist for s times as long); ``motion`` itself when s is 1 or not
-    finite (frames without usable timestamps: one motion a frame), the identity for s <= 0."""
+    ``Exp(s Log(motion))`` (the same camera-frame twist for s times as long; s = 0 gives the identity); ``motion``
+    itself when s is 1 or not finite (frames without usable timestamps: one motion a frame)."""
     if not math.isfinite(s) or s == 1.0:
         return motion
-    if s <= 0.0:
-        return torch.eye(4, dtype=motion.dtype, device=motion.device)
     return se3_exp_host(s * se3_log_host(motion.to(torch.float64))).to(motion.dtype)
