@@ -244,6 +244,30 @@ def evaluate(model, path: str, frames: str | None, shard_views: int, batch: int 
     return {"frames": n, **stats.result(), **span_summary(fits)}
 
 
+_COLUMNS = [("zero-code RMSE", "zero_rmse", ".4f"), ("best constant", "const_rmse", ".4f"), ("ratio", "ratio", ".2f"),
+            ("median depth ratio", "median_depth_ratio", ".2f"), ("scaled RMSE", "si_rmse", ".4f"),
+            ("scale spread", "scale_spread", ".3f"), ("scale jump", "scale_jump", ".3f")]
+_SPAN_COLUMNS = [("span scale", "span_scale", ".2f"), ("span error", "span_error", ".3f"),
+                 ("span error at 1", "span_error_1", ".3f")]
+
+
+def table_header(span: bool) -> list[str]:
+    """The markdown table's two header lines; the span's columns only where --span computed them."""
+    names = ["weights", "set", "frames"] + [c[0] for c in _COLUMNS + (_SPAN_COLUMNS if span else [])]
+    return ["| " + " | ".join(names) + " |", "|---" * len(names) + "|"]
+
+
+def table_row(weights: str, name: str, r: dict, span: bool) -> str:
+    """One set's results as a row under :func:`table_header`; "-" where a figure is undefined (the scale's spread
+    and jump of a one-frame set)."""
+    def cell(key: str, fmt: str) -> str:
+        v = r.get(key)
+        return "-" if v is None or math.isnan(v) else format(v, fmt)
+
+    cells = [weights, name, str(r["frames"])] + [cell(k, f) for _, k, f in _COLUMNS + (_SPAN_COLUMNS if span else [])]
+    return "| " + " | ".join(cells) + " |"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--weights", action="append", default=None, help="weights file (repeat); 'default' = shipped")
@@ -276,8 +300,7 @@ def main() -> None:
         given = dict(s.split("=", 1) for s in args.set)
         sets = (sets if args.only else {}) | given
     results: dict = {}
-    rows = ["| weights | set | frames | zero-code RMSE | best constant | ratio | median depth ratio | scaled RMSE "
-            "| scale spread | scale jump | span scale | span error (at 1) |", "|---" * 12 + "|"]
+    rows = table_header(args.span)
     for w in args.weights or ["default"]:
         model = DepthModel.load(None if w == "default" else w)
         results[w] = {}
@@ -291,12 +314,7 @@ def main() -> None:
             r = evaluate(model, path, frames or None, args.shard_views, span=args.span)
             r["seconds"] = time.perf_counter() - t0
             results[w][name] = r
-            row = (f"| {Path(w).name if w != 'default' else 'shipped'} | {name} | {r['frames']} | "
-                   f"{r.get('zero_rmse', float('nan')):.4f} | {r.get('const_rmse', float('nan')):.4f} | "
-                   f"{r.get('ratio', float('nan')):.2f} | {r.get('median_depth_ratio', float('nan')):.2f} | "
-                   f"{r.get('si_rmse', float('nan')):.4f} | {r.get('scale_spread', float('nan')):.3f} | "
-                   f"{r.get('scale_jump', float('nan')):.3f} | {r.get('span_scale', float('nan')):.2f} | "
-                   f"{r.get('span_error', float('nan')):.3f} ({r.get('span_error_1', float('nan')):.3f}) |")
+            row = table_row(Path(w).name if w != "default" else "shipped", name, r, args.span)
             rows.append(row)
             print(row, flush=True)
     if args.json:

@@ -106,3 +106,18 @@ def test_a_set_that_cannot_be_made_says_why_and_the_real_sets_are_the_split_fold
     assert "could not make gen_v3: codeslam: error: --views must be at least 1, got 0" in capsys.readouterr().out
     assert not (tmp_path / "v3").exists()
     assert sorted(module.REAL_SETS.values()) == sorted(script("split_real_rgbd").TRAIN_FRAMES)
+
+
+def test_the_table_shows_the_span_only_where_it_was_computed_and_no_nan(script):
+    module = script("depth_prior_eval")
+    r = {"frames": 1, "zero_rmse": 0.07, "const_rmse": 0.04, "ratio": 1.65, "median_depth_ratio": 0.81,
+         "si_rmse": 0.05, "scale_spread": float("nan"), "scale_jump": float("nan")}
+    header, rule = module.table_header(span=False)
+    row = module.table_row("shipped", "office", r, span=False)
+    assert "span" not in header and row.count("|") == header.count("|") == rule.count("|")
+    assert row == "| shipped | office | 1 | 0.0700 | 0.0400 | 1.65 | 0.81 | 0.0500 | - | - |"
+    r |= {"span_scale": 0.5, "span_error": 0.031, "span_error_1": 0.052}
+    header, rule = module.table_header(span=True)
+    row = module.table_row("w", "tum", r, span=True)
+    assert "span scale" in header and row.count("|") == header.count("|") == rule.count("|")
+    assert row.endswith("| - | - | 0.50 | 0.031 | 0.052 |")
