@@ -19,6 +19,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from codeslam.data.tum import read_list_file
+from codeslam.errors import CodeSLAMError
+
 
 def gain_at(i: int, start: int, gain: float, ramp: int) -> float:
     """The gain of frame i: a step at ``start``, or with ``ramp`` > 0 a triangle peaking at start + ramp."""
@@ -38,8 +41,10 @@ def main() -> None:
     a = ap.parse_args()
     if a.gain <= 0:
         ap.error("--gain must be positive")
-    rgb = [line.split() for line in (a.src / "rgb.txt").read_text().splitlines()
-           if line.strip() and not line.startswith("#")]
+    try:  # the readers' own parser and checks: two fields a line, files inside the folder
+        _, files = read_list_file(a.src / "rgb.txt", a.src)
+    except (CodeSLAMError, OSError) as e:
+        ap.error(str(e))
     shutil.rmtree(a.out, ignore_errors=True)
     a.out.mkdir(parents=True)
     for name in ("depth", "depth.txt", "groundtruth.txt", "calib.txt", "rgb.txt"):
@@ -48,7 +53,7 @@ def main() -> None:
             shutil.copytree(p, a.out / name)
         elif p.exists():
             shutil.copy(p, a.out / name)
-    for i, rel in enumerate(r[1] for r in rgb):
+    for i, rel in enumerate(f.relative_to(a.src) for f in files):
         g = gain_at(i, a.start, a.gain, a.ramp)
         img = cv2.imread(str(a.src / rel), cv2.IMREAD_UNCHANGED)
         if g != 1.0:

@@ -54,8 +54,12 @@ def test_a_ramp_rises_to_the_gain_and_falls_back_to_one(tmp_path):
         assert int(out[0, 0, 0]) == int(img[0, 0, 0] * g)
 
 
-def test_a_gain_that_is_not_positive_is_refused_in_one_line(tmp_path):
+def test_a_bad_gain_or_list_is_refused_in_one_line(tmp_path):
     _sequence(tmp_path / "src", 2)
     r = _run(tmp_path / "src", tmp_path / "out", "--gain", 0)
     assert r.returncode == 2 and "--gain must be positive" in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()
+    (tmp_path / "src" / "rgb.txt").write_text("0.0 rgb/0.png\n1.0 rgb/9.png\n")  # a list naming a missing file
+    r = _run(tmp_path / "src", tmp_path / "out", "--gain", 0.5)
+    assert r.returncode == 2 and "rgb.txt:2" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "out").exists()
