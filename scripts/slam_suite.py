@@ -8,7 +8,9 @@ a 300-frame hand-held, a noisy corridor, a walk at 30 frames/s, a fast turn at 1
 wall) and eight more added the same way (seeds 81-88: two walks, one of them noisy, two corridors, a noisy hand-held
 camera at 30 frames/s and one at 10 frames/s, a fast turn, a walk at 30 frames/s), four runs with frames dropped
 (four at the HoloLens walk's fastest turn; a tenth of the HoloLens and the TUM frames and a fifth of corridor 82's
-at random, ``--frames`` lists), with the network's depth, four of them again with the dataset's own depth
+at random, ``--frames`` lists), the HoloLens walk there and back (its frames forwards, then backwards to the
+first: the camera's velocity flips at the turn; a re-timed copy made by ``scripts/reorder_copy.py`` under
+``--seqs``), with the network's depth, four of them again with the dataset's own depth
 (``--depth-model standin``), which separates the tracker from the network, and the walk towards a blank wall with
 the network's code Jacobian but the dataset's depth at the zero code (``--depth-model true-prior``), which separates
 the network's zero-code depth from the rest. ``--long`` adds a walk of 39 m, about three times the path of the other
@@ -134,6 +136,9 @@ RUNS = (
     ("holo_drop10", "hololens_dvmvs", ("--frames", dropped(188, 0.9, 11))),
     ("tum_drop10", "tum_fr1_rpy", ("--frames", dropped(190, 0.9, 12))),
     ("corr82_drop20", "corr82", ("--frames", dropped(150, 0.8, 13))),
+    # the walk there and back (added 2026-12-05, forty-sixth session): at the turn the velocity flips (16 cm, 8 deg
+    # off the motion model's prediction), and the way back sees the map of the way there
+    ("holo_back", "hololens_dvmvs@there-and-back", ()),
     ("holo_standin", "hololens_dvmvs", ("--depth-model", "standin")),
     ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
     ("walk_standin", "walk10", ("--depth-model", "standin")),
@@ -150,6 +155,17 @@ LONG_RUNS = (
 
 
 def dataset_path(name: str, seqs: Path) -> Path:
+    """A run's dataset: a shared sequence, a generator sequence (rendered on first use), or ``NAME@ORDER``, the
+    copy of one of those with its frames reordered (``scripts/reorder_copy.py --order ORDER``, made on first use)."""
+    base, _, order = name.partition("@")
+    if order:
+        out = seqs / f"{base}@{order}"
+        if not (out / "rgb.txt").exists():
+            cmd = [sys.executable, str(Path(__file__).with_name("reorder_copy.py")), str(dataset_path(base, seqs)),
+                   str(out), "--order", order]
+            print("copying:", " ".join(cmd[1:]), flush=True)
+            subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
+        return out
     if name in SEQUENCES:
         return SEQUENCES[name].render(seqs)
     return SHARED / name
@@ -258,7 +274,7 @@ def main() -> None:
     datasets = {name: dataset_path(data, args.seqs) for name, data, _ in runs}  # render before timing anything
     (out / "suite.json").write_text(json.dumps({"passthrough": passthrough, "runs": [r[0] for r in runs]}))
     # the longest first, so that two jobs end together
-    order = sorted(runs, key=lambda r: r[1] in ("hololens_dvmvs", "hh41", "walk71"), reverse=True)
+    order = sorted(runs, key=lambda r: r[1].partition("@")[0] in ("hololens_dvmvs", "hh41", "walk71"), reverse=True)
     with ThreadPoolExecutor(args.jobs) as pool:
         for msg in pool.map(lambda r: run_one(r[0], datasets[r[0]], r[2], out, passthrough), order):
             print(msg, flush=True)

@@ -2,6 +2,8 @@
 from the dataset and refuses ``--weights``: comparing two networks over the suite (``-- --weights W``) left the four
 stand-in runs without a result."""
 
+from pathlib import Path
+
 
 def test_weights_reach_the_network_runs_and_not_the_standin_runs(script):
     suite = script("slam_suite")
@@ -60,9 +62,31 @@ def test_every_run_names_a_sequence_the_suite_can_make_and_no_two_sequences_shar
     # the suite would repeat a room and path the settings were chosen on.
     suite = script("slam_suite")
     shared = {"hololens_dvmvs", "tum_fr1_rpy"}
-    assert all(data in suite.SEQUENCES or data in shared for _, data, _ in (*suite.RUNS, *suite.LONG_RUNS))
+    orders = {"reverse", "there-and-back"}  # scripts/reorder_copy.py --order
+    for _, data, _ in (*suite.RUNS, *suite.LONG_RUNS):
+        base, at, order = data.partition("@")
+        assert base in suite.SEQUENCES or base in shared, data
+        assert not at or order in orders, data
     seeds = [s.seed for s in suite.SEQUENCES.values()]
     assert len(seeds) == len(set(seeds)), sorted(seeds)
     names = [r[0] for r in (*suite.RUNS, *suite.LONG_RUNS)]
     assert len(names) == len(set(names))
     assert {"walk81", "corr82", "hh83", "ft84", "walk85", "corr86", "walk87", "hh88"} <= set(names)
+
+
+def test_a_reordered_run_is_made_once_from_its_source_by_the_copy_script(script, tmp_path, monkeypatch):
+    suite = script("slam_suite")
+    calls = []
+
+    def fake_run(cmd, **kw):
+        calls.append(cmd)
+        out = Path(cmd[3])
+        out.mkdir(parents=True)
+        (out / "rgb.txt").write_text("")
+
+    monkeypatch.setattr(suite.subprocess, "run", fake_run)
+    first = suite.dataset_path("hololens_dvmvs@there-and-back", tmp_path)
+    again = suite.dataset_path("hololens_dvmvs@there-and-back", tmp_path)
+    assert first == again == tmp_path / "hololens_dvmvs@there-and-back" and len(calls) == 1
+    assert calls[0][1].endswith("reorder_copy.py") and calls[0][2] == str(suite.SHARED / "hololens_dvmvs")
+    assert calls[0][-2:] == ["--order", "there-and-back"]
