@@ -9,9 +9,10 @@ wall) and eight more added the same way (seeds 81-88: two walks, one of them noi
 camera at 30 frames/s and one at 10 frames/s, a fast turn, a walk at 30 frames/s), four runs with frames dropped
 (four at the HoloLens walk's fastest turn; a tenth of the HoloLens and the TUM frames and a fifth of corridor 82's
 at random, ``--frames`` lists), the HoloLens walk there and back (its frames forwards, then backwards to the
-first: the camera's velocity flips at the turn; a re-timed copy made by ``scripts/reorder_copy.py`` under
-``--seqs``), with the network's depth, four of them again with the dataset's own depth
-(``--depth-model standin``), which separates the tracker from the network, and the walk towards a blank wall with
+first: the camera's velocity flips at the turn) and TUM fr1/rpy upside down (its rolling shutter read from the
+image's bottom up; both copies made by ``scripts/sequence_copy.py`` under ``--seqs``), with the network's depth,
+four of them again with the dataset's own depth (``--depth-model standin``), which separates the tracker from the
+network, and the walk towards a blank wall with
 the network's code Jacobian but the dataset's depth at the zero code (``--depth-model true-prior``), which separates
 the network's zero-code depth from the rest. ``--long`` adds a walk of 39 m, about three times the path of the other
 walks (seed 71, 450 frames), with the network's and the dataset's depth: whether tracking, the map's scale and
@@ -139,6 +140,8 @@ RUNS = (
     # the walk there and back (added 2026-12-05, forty-sixth session): at the turn the velocity flips (16 cm, 8 deg
     # off the motion model's prediction), and the way back sees the map of the way there
     ("holo_back", "hololens_dvmvs@there-and-back", ()),
+    # the camera upside down (added the same session): the Kinect's rows read from the image's bottom up
+    ("tum_flip", "tum_fr1_rpy@upside-down", ()),
     ("holo_standin", "hololens_dvmvs", ("--depth-model", "standin")),
     ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
     ("walk_standin", "walk10", ("--depth-model", "standin")),
@@ -154,15 +157,20 @@ LONG_RUNS = (
 )
 
 
+VARIANTS = {"reverse": ("--order", "reverse"), "there-and-back": ("--order", "there-and-back"),
+            "upside-down": ("--upside-down",)}
+"""``NAME@VARIANT`` datasets: the copy's ``scripts/sequence_copy.py`` arguments."""
+
+
 def dataset_path(name: str, seqs: Path) -> Path:
-    """A run's dataset: a shared sequence, a generator sequence (rendered on first use), or ``NAME@ORDER``, the
-    copy of one of those with its frames reordered (``scripts/reorder_copy.py --order ORDER``, made on first use)."""
-    base, _, order = name.partition("@")
-    if order:
-        out = seqs / f"{base}@{order}"
+    """A run's dataset: a shared sequence, a generator sequence (rendered on first use), or ``NAME@VARIANT``, the
+    copy of one of those that ``scripts/sequence_copy.py`` makes with :data:`VARIANTS` (on first use)."""
+    base, _, variant = name.partition("@")
+    if variant:
+        out = seqs / f"{base}@{variant}"
         if not (out / "rgb.txt").exists():
-            cmd = [sys.executable, str(Path(__file__).with_name("reorder_copy.py")), str(dataset_path(base, seqs)),
-                   str(out), "--order", order]
+            cmd = [sys.executable, str(Path(__file__).with_name("sequence_copy.py")), str(dataset_path(base, seqs)),
+                   str(out), *VARIANTS[variant]]
             print("copying:", " ".join(cmd[1:]), flush=True)
             subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL)
         return out

@@ -62,11 +62,10 @@ def test_every_run_names_a_sequence_the_suite_can_make_and_no_two_sequences_shar
     # the suite would repeat a room and path the settings were chosen on.
     suite = script("slam_suite")
     shared = {"hololens_dvmvs", "tum_fr1_rpy"}
-    orders = {"reverse", "there-and-back"}  # scripts/reorder_copy.py --order
     for _, data, _ in (*suite.RUNS, *suite.LONG_RUNS):
-        base, at, order = data.partition("@")
+        base, at, variant = data.partition("@")
         assert base in suite.SEQUENCES or base in shared, data
-        assert not at or order in orders, data
+        assert not at or variant in suite.VARIANTS, data
     seeds = [s.seed for s in suite.SEQUENCES.values()]
     assert len(seeds) == len(set(seeds)), sorted(seeds)
     names = [r[0] for r in (*suite.RUNS, *suite.LONG_RUNS)]
@@ -88,5 +87,7 @@ def test_a_reordered_run_is_made_once_from_its_source_by_the_copy_script(script,
     first = suite.dataset_path("hololens_dvmvs@there-and-back", tmp_path)
     again = suite.dataset_path("hololens_dvmvs@there-and-back", tmp_path)
     assert first == again == tmp_path / "hololens_dvmvs@there-and-back" and len(calls) == 1
-    assert calls[0][1].endswith("reorder_copy.py") and calls[0][2] == str(suite.SHARED / "hololens_dvmvs")
+    assert calls[0][1].endswith("sequence_copy.py") and calls[0][2] == str(suite.SHARED / "hololens_dvmvs")
     assert calls[0][-2:] == ["--order", "there-and-back"]
+    flipped = suite.dataset_path("tum_fr1_rpy@upside-down", tmp_path)
+    assert flipped == tmp_path / "tum_fr1_rpy@upside-down" and calls[1][-1] == "--upside-down" and len(calls) == 2

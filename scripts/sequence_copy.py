@@ -1,0 +1,146 @@
+"""A TUM-layout copy of a sequence with its frames in another order, or seen by a camera turned upside down: the
+probes of a camera that comes back the way it went and of a sensor whose rows are read from the image's bottom up
+(`docs/results/slam_table.md`, forty-fifth and forty-sixth sessions). ``--frames`` of `codeslam slam` keeps a
+sequence's order and time; these copies change them.
+
+``--order reverse`` plays the frames backwards (last to first); ``--order there-and-back`` plays them forwards and
+then backwards to the first frame (the last frame once: at the turn the camera's velocity flips); the default,
+``forward``, keeps them. A reordered frame j is stamped ``t0 + j * dt``, with ``t0`` the first frame's stamp and
+``dt`` the median interval between frames, so time always runs forwards. Each frame keeps its own colour image,
+depth map and ground-truth pose (the pose as the reader associates it with the colour image; the depth map the
+reader pairs with it), written as one row of ``rgb.txt``, ``depth.txt`` and ``groundtruth.txt`` each; image files
+are copied as they are, and the calibration with them, so the reader undistorts the copy as it does the source.
+Frames without a depth map (by the reader's association) are left out, as the reader leaves them out.
+
+``--upside-down`` turns every image and depth map by 180 degrees: the camera mounted upside down. Its calibration
+follows (principal point mirrored, ``cx' = W - 1 - cx``, ``cy' = H - 1 - cy``; tangential distortion negated, the
+radial terms as they are) and so does its pose (``T_wc Rz(180)``: the camera's x and y axes reversed). A rolling
+shutter then reads the rows from the image's bottom up.
+
+    python scripts/sequence_copy.py ../shared/data/hololens_dvmvs OUT --order there-and-back
+    python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --upside-down
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from codeslam.data.association import associate
+from codeslam.data.trajectory import Trajectory, write_tum
+from codeslam.data.tum import TUM_MAX_DIFF_S, TumSequence, read_list_file
+from codeslam.errors import CodeSLAMError
+
+ORDERS = ("forward", "reverse", "there-and-back")
+UPSIDE_DOWN = torch.diag(torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=torch.float64))  # Rz(180): the camera's turn
+
+
+def frame_order(n: int, order: str) -> list[int]:
+    """Indices of the copy's frames into the source's ``n``."""
+    if order == "forward":
+        return list(range(n))
+    if order == "reverse":
+        return list(range(n - 1, -1, -1))
+    if order == "there-and-back":
+        return list(range(n)) + list(range(n - 2, -1, -1))
+    raise ValueError(f"unknown order {order!r}")
+
+
+def retimed(stamps: np.ndarray, count: int) -> np.ndarray:
+    """``count`` stamps from the first of ``stamps`` at their median interval."""
+    dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 1.0
+    return stamps[0] + dt * np.arange(count)
+
+
+def upside_down_calibration(seq: TumSequence) -> str:
+    """``calib.txt`` of the source camera turned by 180 degrees (module docstring)."""
+    cam = seq.source_camera
+    k1, k2, p1, p2, k3 = (tuple(cam.dist) + (0.0,) * 5)[:5]
+    vals = (cam.fx, cam.fy, cam.width - 1 - cam.cx, cam.height - 1 - cam.cy, k1, k2, -p1, -p2, k3)
+    return " ".join(f"{v:.9g}" for v in vals) + "\n"
+
+
+def copy_image(src: Path, dst: Path, upside_down: bool) -> None:
+    """``src`` to ``dst`` as it is, or turned by 180 degrees (8 or 16 bits kept)."""
+    if not upside_down:
+        shutil.copy(src, dst)
+        return
+    img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
+    if img is None or not cv2.imwrite(str(dst), cv2.rotate(img, cv2.ROTATE_180)):
+        raise OSError(f"cannot turn {src} into {dst}")
+
+
+def write_copy(src: Path, out: Path, order: str, upside_down: bool = False) -> int:
+    """The copy in ``out`` (written beside it, then renamed into place); returns its number of frames."""
+    seq = TumSequence(src)  # the reader's own association of colour, depth and ground truth
+    stamps = seq.timestamps
+    rgb_stamps, rgb_files = read_list_file(src / "rgb.txt", src)
+    by_stamp = dict(zip(rgb_stamps.tolist(), rgb_files))
+    rgb = [by_stamp[float(t)] for t in stamps]
+    depth = None
+    if seq.has_depth:
+        d_stamps, d_files = read_list_file(src / "depth.txt", src)
+        ia, ib = associate(stamps, d_stamps, TUM_MAX_DIFF_S)
+        assert len(ia) == len(stamps), "the reader kept only frames with a depth map"
+        depth = [d_files[j] for j in ib]
+    idx = frame_order(len(stamps), order)
+    new = stamps if order == "forward" else retimed(stamps, len(idx))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))
+    try:
+        for name in ("calib.txt", "LICENSE", "README.md"):
+            if (src / name).is_file():
+                shutil.copy(src / name, tmp / name)
+        if upside_down:
+            (tmp / "calib.txt").write_text(upside_down_calibration(seq))
+        what = ", ".join([f"order {order}"] + (["upside down"] if upside_down else []))
+        for kind, files in (("rgb", rgb), ("depth", depth)):
+            if files is None:
+                continue
+            (tmp / kind).mkdir()
+            rows = []
+            for i, j in enumerate(idx):
+                name = f"{kind}/{new[i]:.6f}{files[j].suffix}"
+                copy_image(files[j], tmp / name, upside_down)
+                rows.append(f"{new[i]:.6f} {name}\n")
+            head = f"# {src.name}, {what} (scripts/sequence_copy.py)\n"
+            (tmp / f"{kind}.txt").write_text(head + "".join(rows))
+        gt = seq.gt_poses
+        if gt is not None:
+            keep = [i for i, j in enumerate(idx) if not bool(gt[j].isnan().any())]
+            poses = gt[[idx[i] for i in keep]]
+            if upside_down:
+                poses = poses @ UPSIDE_DOWN
+            write_tum(tmp / "groundtruth.txt", Trajectory(new[keep], poses))
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return len(idx)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("src", type=Path, help="a TUM-layout sequence (rgb.txt, rgb/, depth.txt, groundtruth.txt)")
+    ap.add_argument("out", type=Path, help="the copy's folder (replaced)")
+    ap.add_argument("--order", choices=ORDERS, default="forward")
+    ap.add_argument("--upside-down", action="store_true", help="images, depth, calibration and poses turned 180 deg")
+    a = ap.parse_args()
+    try:
+        n = write_copy(a.src, a.out, a.order, a.upside_down)
+    except (CodeSLAMError, OSError) as e:
+        ap.error(str(e))
+    print(f"{a.out}: {n} frames")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,92 @@
+"""scripts/sequence_copy.py: the copies of a sequence played backwards, there and back, or seen by a camera upside
+down, that the SLAM probes of a camera coming back the way it went and of a sensor read bottom up run on."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from codeslam.data.tum import TumSequence
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "sequence_copy.py"
+
+
+def _sequence(root: Path, n: int, calib: str = "10 10 4 3", size: tuple[int, int] = (8, 6)) -> None:
+    """``n`` frames at 10 frames/s with jittered stamps, depth 5 ms off the colour, a pose per frame; textured
+    images of ``size`` (W, H)."""
+    (root / "rgb").mkdir(parents=True)
+    (root / "depth").mkdir()
+    rgb, depth, gt = [], [], []
+    for i in range(n):
+        t = 1.0 + 0.1 * i + (0.01 if i == 2 else 0.0)
+        w, h = size
+        texture = np.random.default_rng(i).integers(0, 256, (h, w, 3), dtype=np.uint8)
+        cv2.imwrite(str(root / "rgb" / f"{t:.3f}.png"), cv2.GaussianBlur(texture, (0, 0), 1.5))
+        cv2.imwrite(str(root / "depth" / f"{t + 0.005:.3f}.png"),
+                    (5000 + 100 * i + 7 * np.arange(h * w).reshape(h, w)).astype(np.uint16))
+        rgb.append(f"{t:.3f} rgb/{t:.3f}.png\n")
+        depth.append(f"{t + 0.005:.3f} depth/{t + 0.005:.3f}.png\n")
+        gt.append(f"{t:.3f} {i} {2 * i} 0 0.1 0.2 0.3 0.927362\n")
+    (root / "rgb.txt").write_text("# colour\n" + "".join(rgb))
+    (root / "depth.txt").write_text("".join(depth))
+    (root / "groundtruth.txt").write_text("".join(gt))
+    (root / "calib.txt").write_text(calib + "\n")
+
+
+def _run(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(SCRIPT), *map(str, args)], capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("order, want", [("reverse", [3, 2, 1, 0]), ("there-and-back", [0, 1, 2, 3, 2, 1, 0])])
+def test_the_copy_plays_each_frame_with_its_own_depth_and_pose_in_the_new_order_as_time_runs_on(
+        tmp_path, order, want):
+    _sequence(tmp_path / "src", 4)
+    done = _run(tmp_path / "src", tmp_path / "out", "--order", order)
+    assert done.returncode == 0, done.stderr
+    src, out = TumSequence(tmp_path / "src"), TumSequence(tmp_path / "out")
+    assert len(out) == len(want)
+    assert np.allclose(np.diff(out.timestamps), 0.1)  # the median interval, evenly: time runs forwards
+    assert out.timestamps[0] == pytest.approx(1.0)
+    for j, i in enumerate(want):
+        a, b = src.frame(i), out.frame(j)
+        assert torch.equal(a.image, b.image) and torch.equal(a.depth, b.depth)
+        assert torch.allclose(a.pose, b.pose, atol=1e-9)
+    assert not list(tmp_path.glob("out.*"))  # no temporary folder left beside it
+
+
+def test_a_missing_sequence_is_a_one_line_error_and_writes_nothing(tmp_path):
+    done = _run(tmp_path / "nowhere", tmp_path / "out", "--order", "reverse")
+    assert done.returncode == 2
+    assert "nowhere" in done.stderr.strip().splitlines()[-1] and "Traceback" not in done.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_upside_down_every_world_point_lands_on_the_mirrored_pixel_with_the_same_depth(tmp_path):
+    """The copy's image, depth, calibration and pose are one camera turned by 180 degrees: a point seen at pixel
+    (u, v) of a source frame is seen at (W - 1 - u, H - 1 - v) of the copy's frame, and the frames the reader
+    gives (undistorted) are the source's turned, also with lens distortion (tangential terms negated)."""
+    calib = "40 42 30.5 21 0.05 -0.02 0.004 -0.003"
+    _sequence(tmp_path / "src", 3, calib, size=(64, 48))
+    done = _run(tmp_path / "src", tmp_path / "out", "--upside-down")
+    assert done.returncode == 0, done.stderr
+    src, out = TumSequence(tmp_path / "src"), TumSequence(tmp_path / "out")
+    assert np.array_equal(src.timestamps, out.timestamps)
+    cam_a, cam_b = src.frame(0).camera, out.frame(0).camera
+    X = torch.tensor([0.4, -0.3, 2.5, 1.0], dtype=torch.float64)  # a world point
+    for i in range(3):
+        a, b = src.frame(i), out.frame(i)
+        xa = torch.linalg.inv(a.pose) @ X
+        xb = torch.linalg.inv(b.pose) @ X
+        ua, va = cam_a.fx * xa[0] / xa[2] + cam_a.cx, cam_a.fy * xa[1] / xa[2] + cam_a.cy
+        ub, vb = cam_b.fx * xb[0] / xb[2] + cam_b.cx, cam_b.fy * xb[1] / xb[2] + cam_b.cy
+        assert float(xa[2]) == pytest.approx(float(xb[2]))  # the same depth
+        assert float(ub) == pytest.approx(63 - float(ua)) and float(vb) == pytest.approx(47 - float(va))
+        inner = (slice(None), slice(6, -6), slice(6, -6))  # where undistortion interpolates inside both images
+        assert (b.image - a.image.flip(1, 2))[inner].abs().max() < 2e-3
+        assert torch.equal(b.depth[6:-6, 6:-6] > 0, a.depth.flip(0, 1)[6:-6, 6:-6] > 0)
