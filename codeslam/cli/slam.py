@@ -236,7 +236,9 @@ def _readout_text(rs: dict) -> str:
     """The summary's line on the readout chosen online (``result.json``'s ``rolling_shutter``)."""
     if rs["readout"] is None:
         return f"readout not decided ({rs['frames']} turning frames, too few)"
-    what = f"readout {rs['readout']:.2f} of the frame interval" if rs["readout"] > 0 else "global shutter"
+    r = rs["readout"]
+    what = f"readout {abs(r):.2f} of the frame interval" + (", rows read bottom up" if r < 0 else "") if r \
+        else "global shutter"
     if rs["decided_at_frame"] is None:
         return f"{what} (provisional, from {rs['frames']} turning frames)"
     return f"{what} (chosen at frame {rs['decided_at_frame']} from {rs['frames']} turning frames)"

@@ -90,7 +90,8 @@ class TrackerConfig:
     much between frames; an unrelated image is often "explained" by a gain near 0."""
     rolling_shutter_readout: float = 0.0
     """With ``rolling_shutter_estimate`` false: the sensor's readout time as a fraction of the frame interval (0: a
-    global shutter). Above 0 every frame is rectified to a global shutter at mid-readout before tracking
+    global shutter; negative: the rows read from the image's bottom up, a camera mounted upside down). Other than 0
+    every frame is rectified to a global shutter at mid-readout before tracking
     (:mod:`codeslam.geometry.rolling_shutter`), with the angular velocity of the motion model (the last
     inter-frame rotation): its image, depth and mask, and its keypoints. A frame that becomes a keyframe is
     rectified again with the rotation from the last frame to its tracked pose (one frame more recent than the
@@ -107,16 +108,22 @@ class TrackerConfig:
     docs/results/slam_table.md, session of 2026-11-26, second): TUM fr1/rpy chooses 0.59 (0.75 from start frames
     5-15 and with the sensor's depth), the HoloLens and generator walks a global shutter (their trajectories
     unchanged to the last digit); TUM from frames 0 / 5 / 10 / 15: 1.71 / 6.37 / 3.35 / 2.82 deg -> 1.42 / 1.53 /
-    1.15 / 2.94 deg (a hand-set 0.5: 1.38 / 1.35 / 1.50 / 1.68). Costs about 10 ms per frame over TUM's first 50
-    frames (four alignments at the finest level per informative frame), nothing after."""
+    1.15 / 2.94 deg (a hand-set 0.5: 1.38 / 1.35 / 1.50 / 1.68). The candidates are signed (rows read top down or
+    bottom up; a camera upside down reads them bottom up): TUM fr1/rpy turned by 180 degrees 0.0382 m, 5.98 deg
+    -> 0.0236 m, 2.18 deg (its readout -0.75; with the dataset's depth 0.0274 m, 1.53 deg -> 0.0113 m, 1.13 deg,
+    upright 0.0122 m, 1.03 deg); upright runs unchanged to the byte (session of 2026-12-05, forty-sixth). Costs
+    seven alignments at the finest level for each of the first 10 informative frames, four after (one direction
+    kept), none once chosen: on TUM 6.4 ms per frame averaged over the run at one thread (5.1 with positive
+    candidates alone)."""
 
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)
         if self.feature_start_level != -1 and not 0 <= min(self.pyramid_levels) <= self.feature_start_level:
             raise ConfigError(f"tracker.feature_start_level must be -1 or a level no finer than the finest of "
                               f"pyramid_levels {self.pyramid_levels}, got {self.feature_start_level}")
-        if not 0.0 <= self.rolling_shutter_readout <= 1.0:
-            raise ConfigError("tracker.rolling_shutter_readout must lie in [0, 1] (a fraction of the frame interval), "
+        if not -1.0 <= self.rolling_shutter_readout <= 1.0:
+            raise ConfigError("tracker.rolling_shutter_readout must lie in [-1, 1] (a signed fraction of the frame "
+                              "interval), "
                               f"got {self.rolling_shutter_readout}")
         if self.motion_model not in MOTION_MODELS:
             raise ConfigError(f"tracker.motion_model must be one of {MOTION_MODELS}, got {self.motion_model!r}")

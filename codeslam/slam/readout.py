@@ -6,9 +6,10 @@ fr1/rpy the tracked rotation error follows that difference, correlation +0.62; `
 rotation_error_vs_velocity.py``). The readout is a property of the camera that the datasets do not carry, so it
 is chosen from the images themselves: each informative frame (one that turns against its keyframe by more than
 ``min_turn_deg`` per frame) that tracked is aligned photometrically again under each hypothesis ``c`` about the
-readout, 0 and each candidate: its image rectified so that it keeps the distortion its keyframe keeps under that
-hypothesis (first order: the keyframe, rectified by ``s_k`` times its own turn ``w_k`` when it was made, keeps
-``(c - s_k) w_k``; the frame, turning by ``w_f``, is rectified by ``c (w_f - w_k) + s_k w_k``). The mean log ratio
+readout, 0 and each candidate (signed: the rows read top down or bottom up): its image rectified so that it keeps
+the distortion its keyframe keeps under that hypothesis (first order: the keyframe, rectified by ``s_k`` times its
+own turn ``w_k`` when it was made, keeps ``(c - s_k) w_k``; the frame, turning by ``w_f``, is rectified by
+``c (w_f - w_k) + s_k w_k``). The mean log ratio
 of each candidate's RMS residual to that of readout 0 picks the readout (the parabola's vertex through the best
 candidate and its neighbours) when the best beats readout 0 by more than ``margin``, else a global shutter:
 provisionally from ``min_frames`` such frames on, so that the frames after it are rectified, and finally after
@@ -34,18 +35,26 @@ from dataclasses import dataclass, field
 
 import torch
 
-CANDIDATES = (0.25, 0.5, 0.75)
-"""Readouts tried, as fractions of the frame interval (a Kinect's rows take about half of it)."""
+CANDIDATES = (-0.75, -0.5, -0.25, 0.25, 0.5, 0.75)
+"""Readouts tried, as signed fractions of the frame interval (a Kinect's rows take about half of it): positive
+when the rows are read from the image's top down, negative from its bottom up (a camera mounted upside down, or a
+video turned by 180 degrees by its rotation tag: the sensor still reads its own rows top down). Evenly spaced, 0
+among them. Measured with positive ones alone (``docs/results/slam_table.md``, session of 2026-12-05,
+forty-sixth): TUM fr1/rpy turned upside down found no positive readout better than none and settled as a global
+shutter, 0.0382 m and 5.98 deg off against 0.0117 m and 1.34 deg upright."""
 
 
 @dataclass
 class ReadoutChoice:
     """Accumulates the evidence of informative frames: a provisional readout from ``min_frames`` of them on
     (updated with every further one), final after ``frames``, or once a global shutter is settled (``confidence``
-    standard errors, module docstring).
+    standard errors, module docstring). A camera reads its rows one way: at ``min_frames`` the direction whose best
+    candidate fits better is kept (``side``) and only its candidates are weighed after that, which saves three of
+    the seven alignments of each later frame (about 5 ms each on TUM fr1/rpy at one thread).
 
     value: None before ``min_frames`` informative frames, then the readout chosen so far (0.0: a global shutter);
-    decided_at: the index of the frame that made it final."""
+    decided_at: the index of the frame that made it final; side: 0 before ``min_frames``, then +1 (rows read top
+    down) or -1 (bottom up)."""
 
     frames: int = 40
     min_frames: int = 10
@@ -54,7 +63,9 @@ class ReadoutChoice:
     confidence: float = 3.0
     log_ratio: list[float] = field(default_factory=lambda: [0.0] * len(CANDIDATES))
     log_ratio_sq: list[float] = field(default_factory=lambda: [0.0] * len(CANDIDATES))
+    count: list[int] = field(default_factory=lambda: [0] * len(CANDIDATES))
     seen: int = 0
+    side: int = 0
     value: float | None = None
     decided_at: int | None = None
 
@@ -62,15 +73,26 @@ class ReadoutChoice:
     def final(self) -> bool:
         return self.seen >= self.frames or self.global_shutter_settled()
 
+    @property
+    def candidates(self) -> tuple[float, ...]:
+        """The readouts still weighed: every candidate, then those of the direction kept (``side``)."""
+        return tuple(c for c in CANDIDATES if self.side * c >= 0)
+
+    def means(self) -> dict[float, float]:
+        """Mean log residual ratio of each candidate weighed so far, over the frames it was weighed on."""
+        return {c: v / n for c, v, n in zip(CANDIDATES, self.log_ratio, self.count) if n}
+
     def global_shutter_settled(self) -> bool:
-        """Whether every candidate's mean log ratio lies above ``-margin`` by ``confidence`` standard errors of the
-        mean (sample spread of the frames' ratios), from ``min_frames`` informative frames on."""
-        n = self.seen
-        if n < max(self.min_frames, 2):
+        """Whether every candidate still weighed has its mean log ratio above ``-margin`` by ``confidence``
+        standard errors of the mean (sample spread of the frames' ratios), from ``min_frames`` informative frames
+        on."""
+        if self.seen < max(self.min_frames, 2):
             return False
-        for s, ss in zip(self.log_ratio, self.log_ratio_sq):
-            mean = s / n
-            var = max(ss - n * mean * mean, 0.0) / (n - 1)
+        for i, c in enumerate(CANDIDATES):
+            if c not in self.candidates:
+                continue
+            n, mean = self.count[i], self.log_ratio[i] / self.count[i]
+            var = max(self.log_ratio_sq[i] - n * mean * mean, 0.0) / (n - 1)
             if mean - self.confidence * math.sqrt(var / n) < -self.margin:
                 return False
         return True
@@ -80,41 +102,46 @@ class ReadoutChoice:
         frame's own turn from the last frame minus the keyframe's) can still tell readouts apart."""
         return not self.final and math.degrees(float(turn.norm())) >= self.min_turn_deg
 
-    def add(self, base: float, residuals: list[float], index: int | None = None) -> None:
-        """One informative frame (``index``): the RMS residual of its alignment under readout 0 and under each
-        candidate."""
-        if self.final or not (base > 0 and all(r > 0 and math.isfinite(r) for r in residuals)):
+    def add(self, base: float, residuals: dict[float, float], index: int | None = None) -> None:
+        """One informative frame (``index``): the RMS residual of its alignment under readout 0 (``base``) and
+        under each candidate of :attr:`candidates` (``residuals``, by readout; others are not read)."""
+        r = [residuals.get(c, math.nan) for c in self.candidates]
+        if self.final or not (base > 0 and all(x > 0 and math.isfinite(x) for x in r)):
             return  # an alignment without overlap says nothing
-        for i, r in enumerate(residuals):
-            x = math.log(r / base)
-            self.log_ratio[i] += x
-            self.log_ratio_sq[i] += x * x
+        for c, x in zip(self.candidates, r):
+            i = CANDIDATES.index(c)
+            self.log_ratio[i] += math.log(x / base)
+            self.log_ratio_sq[i] += math.log(x / base) ** 2
+            self.count[i] += 1
         self.seen += 1
         if self.seen >= min(self.min_frames, self.frames):
-            self.value = choose([v / self.seen for v in self.log_ratio], self.margin)
+            if self.side == 0:  # the direction of the best candidate so far
+                means = self.means()
+                self.side = 1 if min(means, key=means.__getitem__) > 0 else -1
+            self.value = choose({c: m for c, m in self.means().items() if c in self.candidates}, self.margin)
         if self.final:  # settled as a global shutter implies value 0.0: every mean lies above -margin
             self.decided_at = index
 
     def summary(self) -> dict:
-        """What was decided and on what evidence (mean log residual ratio per candidate), for the run's result."""
-        n = max(self.seen, 1)
+        """What was decided and on what evidence (mean log residual ratio per candidate over the frames it was
+        weighed on), for the run's result."""
         return {"readout": self.value, "frames": self.seen, "decided_at_frame": self.decided_at,
-                "mean_log_residual_ratio": {str(c): v / n for c, v in zip(CANDIDATES, self.log_ratio)}}
+                "mean_log_residual_ratio": {str(c): m for c, m in self.means().items()}}
 
 
-def choose(means: list[float], margin: float) -> float:
-    """The readout from the mean log residual ratio of each candidate (:data:`CANDIDATES`, evenly spaced) to the
-    unrectified alignment (0 at readout 0): a global shutter (0.0) unless the best candidate beats it by more
-    than ``margin``; else the vertex of the parabola through the best candidate and its neighbours (readout 0
-    counts as the neighbour of the first), kept within half a step of it."""
-    s = (0.0, *CANDIDATES)
-    v = (0.0, *means)
+def choose(means: dict[float, float], margin: float) -> float:
+    """The readout from the mean log residual ratio of each candidate weighed (``means``, by readout: evenly
+    spaced candidates, one side of 0 or both) to the unrectified alignment (0 at readout 0): a global shutter (0.0)
+    unless the best candidate beats it by more than ``margin``; else the vertex of the parabola through the best
+    candidate and its neighbours in readout (readout 0 is the neighbour of the candidates nearest it), kept within
+    half a step of it; the candidate itself at either end."""
+    s, v = zip(*sorted({0.0: 0.0, **means}.items()))  # by readout
     best = min(range(len(v)), key=v.__getitem__)
-    if best == 0 or v[best] >= -margin:
+    if s[best] == 0.0 or v[best] >= -margin:
         return 0.0
-    if best == len(v) - 1:
+    if best in (0, len(v) - 1):
         return s[best]
-    h = s[1] - s[0]
+    h = s[best + 1] - s[best]
     curvature = v[best - 1] - 2.0 * v[best] + v[best + 1]
     shift = 0.5 * h * (v[best - 1] - v[best + 1]) / curvature if curvature > 0 else 0.0
     return s[best] + max(-0.5 * h, min(0.5 * h, shift))

@@ -59,7 +59,7 @@ from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, 
 from codeslam.slam.keyframes import MAPPING_BUSY, KeyframeDecision, decide_keyframe, motion_since_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult, torch_threads
 from codeslam.slam.poses import project_to_se3, scale_motion, spread_correction
-from codeslam.slam.readout import CANDIDATES, ReadoutChoice
+from codeslam.slam.readout import ReadoutChoice
 from codeslam.slam.smoothing import smooth_positions
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
 from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport
@@ -411,7 +411,7 @@ class CodeSLAM:
         choosing = self.readout_choice is not None and not self.readout_choice.final
         # its rotation from the last frame (None for the first), needed while the readout is being chosen and to
         # rectify a new keyframe under a readout
-        wanted = choosing or (decision.add and self.readout > 0)
+        wanted = choosing or (decision.add and self.readout != 0)
         turn = self._turn_from_last(T_wc, views.frame.timestamp) if wanted else None
         estimating = choosing and turn is not None and self._records[-1].ok
         if estimating:
@@ -689,7 +689,7 @@ class CodeSLAM:
             else:
                 kept = frame
         raw = (net, keypoints, frame.camera, frame.depth)
-        if self.readout <= 0:
+        if self.readout == 0:
             return _Views(net, keypoints, raw, input_frame=kept)
         with self.clock("resample"):
             last = self._last_motion()
@@ -727,7 +727,7 @@ class CodeSLAM:
     def _rerectified(self, views: _Views, turn: torch.Tensor | None) -> _Views:
         """A new keyframe's views rectified again with ``turn``, its tracked rotation from the last frame, instead
         of the one frame older motion-model guess."""
-        if self.readout <= 0 or turn is None:
+        if self.readout == 0 or turn is None:
             return views
         return self._rectified_views(views.raw, self.readout * turn)
 
@@ -794,7 +794,7 @@ class CodeSLAM:
 
         with self._aligning_threads():
             base = residual(0.0)
-            candidates = [residual(c) for c in CANDIDATES]
+            candidates = {c: residual(c) for c in self.readout_choice.candidates}
         self.readout_choice.add(base, candidates, views.frame.index)
         if self.readout_choice.value is not None:
             self.readout = self.readout_choice.value

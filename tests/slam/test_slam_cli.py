@@ -90,6 +90,8 @@ def test_the_summary_says_how_the_readout_was_chosen():
     base = {"frames": 40, "decided_at_frame": 48, "readout": 0.59}
     assert _readout_text(base) == "readout 0.59 of the frame interval (chosen at frame 48 from 40 turning frames)"
     assert _readout_text({**base, "readout": 0.0}) == "global shutter (chosen at frame 48 from 40 turning frames)"
+    assert _readout_text({**base, "readout": -0.59}) == (
+        "readout 0.59 of the frame interval, rows read bottom up (chosen at frame 48 from 40 turning frames)")
     assert _readout_text({**base, "frames": 25, "decided_at_frame": None, "readout": 0.0}) == (
         "global shutter (provisional, from 25 turning frames)")
     assert _readout_text({**base, "frames": 3, "decided_at_frame": None, "readout": None}) == (

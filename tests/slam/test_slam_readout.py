@@ -14,31 +14,42 @@ from codeslam.slam.readout import CANDIDATES, ReadoutChoice, choose
 from codeslam.slam.system import CodeSLAM
 
 
+def at(f) -> dict[float, float]:
+    """One value per candidate readout, ``f(readout)``."""
+    return {c: f(c) for c in CANDIDATES}
+
+
+HALF = at(lambda c: {0.25: 0.9, 0.5: 0.8, 0.75: 0.85}.get(c, 1.1))  # residuals: readout 0.5 fits best
+
+
 def test_a_global_shutter_unless_a_candidate_clearly_explains_the_frames_better():
-    assert choose([0.10, 0.23, 0.31], 0.03) == 0.0  # every rectification fits worse (the HoloLens walk's kind)
-    assert choose([-0.01, -0.02, -0.025], 0.03) == 0.0  # better, but within the margin
-    assert choose([-0.1, -0.2, -0.3], 0.03) == CANDIDATES[-1]  # the last candidate: no neighbour beyond it
+    assert choose(at(lambda c: 0.1 + 0.3 * abs(c)), 0.03) == 0.0  # every rectification fits worse (the walk's kind)
+    assert choose(at(lambda c: -0.01 - 0.02 * abs(c)), 0.03) == 0.0  # better, but within the margin
+    assert choose(at(lambda c: -0.4 * c), 0.03) == CANDIDATES[-1]  # the last candidate: no neighbour beyond it
+    assert choose(at(lambda c: 0.4 * c), 0.03) == CANDIDATES[0]  # rows read bottom up: the first
 
 
-def test_the_readout_is_the_vertex_of_the_parabola_through_the_best_candidate_and_its_neighbours():
+@pytest.mark.parametrize("sign", [1, -1])  # rows read top down, or bottom up (a camera upside down)
+def test_the_readout_is_the_vertex_of_the_parabola_through_the_best_candidate_and_its_neighbours(sign):
     # a quadratic in the readout s with its minimum at 0.55: the vertex is found exactly
-    means = [(s - 0.55) ** 2 - 0.55**2 for s in CANDIDATES]
-    assert math.isclose(choose(means, 0.03), 0.55, abs_tol=1e-12)
-    # readout 0 (ratio 0) is the first candidate's left neighbour: minimum at 0.3
-    means = [(s - 0.3) ** 2 - 0.3**2 for s in CANDIDATES]
-    assert math.isclose(choose(means, 0.03), 0.3, abs_tol=1e-12)
+    means = at(lambda s: (s - sign * 0.55) ** 2 - 0.55**2)
+    assert math.isclose(choose(means, 0.03), sign * 0.55, abs_tol=1e-12)
+    # readout 0 (ratio 0) is the neighbour of the two candidates nearest it: minimum at 0.3
+    means = at(lambda s: (s - sign * 0.3) ** 2 - 0.3**2)
+    assert math.isclose(choose(means, 0.03), sign * 0.3, abs_tol=1e-12)
     # never more than half a step from the best candidate
-    assert choose([-0.5, -0.5001, 10.0], 0.03) >= CANDIDATES[1] - 0.125
+    assert 0.375 <= choose(at(lambda c: {0.25: -0.5, 0.5: -0.5001, 0.75: 10.0}.get(c, 1.0)), 0.03) < 0.5
 
 
 def test_the_choice_waits_for_enough_informative_frames():
     choice = ReadoutChoice(frames=3, min_frames=3, min_turn_deg=0.5, margin=0.03)
     assert not choice.informative(torch.tensor([0.0, math.radians(0.4), 0.0], dtype=torch.float64))
     assert choice.informative(torch.tensor([0.0, math.radians(0.6), 0.0], dtype=torch.float64))
-    residuals = [0.9, 0.8, 0.85]  # relative to a base of 1.0: readout 0.5 fits best
+    residuals = HALF  # relative to a base of 1.0: readout 0.5 fits best
     choice.add(1.0, residuals, 4)
     choice.add(0.0, residuals, 5)  # no overlap: says nothing
-    choice.add(1.0, [0.9, math.nan, 0.85], 6)  # a failed alignment: says nothing
+    failed = {**HALF, 0.5: math.nan}
+    choice.add(1.0, failed, 6)  # a failed alignment: says nothing
     choice.add(1.0, residuals, 7)
     assert choice.value is None and choice.seen == 2
     choice.add(1.0, residuals, 9)
@@ -49,17 +60,36 @@ def test_the_choice_waits_for_enough_informative_frames():
     assert math.isclose(summary["mean_log_residual_ratio"]["0.5"], math.log(0.8))
 
 
+def test_after_min_frames_only_the_direction_that_fits_better_is_weighed():
+    # rows read bottom up (a camera upside down): the negative side fits, -0.5 best
+    upside_down = at(lambda c: {-0.25: 0.9, -0.5: 0.8, -0.75: 0.85}.get(c, 1.2))
+    choice = ReadoutChoice(frames=6, min_frames=3, margin=0.03)
+    assert choice.candidates == CANDIDATES
+    for k in range(3):
+        choice.add(1.0, upside_down, k)
+    assert choice.side == -1 and choice.candidates == (-0.75, -0.5, -0.25) and -0.6 < choice.value < -0.4
+    choice.add(1.0, {c: r for c, r in upside_down.items() if c < 0}, 3)  # the other side's are not needed now
+    assert choice.seen == 4 and choice.count == [4, 4, 4, 3, 3, 3]
+    summary = choice.summary()["mean_log_residual_ratio"]
+    assert math.isclose(summary["-0.5"], math.log(0.8)) and math.isclose(summary["0.5"], math.log(1.2))
+    # the same frames read top down: the positive side, the readout mirrored
+    mirrored = ReadoutChoice(frames=6, min_frames=3, margin=0.03)
+    for k in range(4):
+        mirrored.add(1.0, {-c: r for c, r in upside_down.items()}, k)
+    assert mirrored.side == 1 and math.isclose(mirrored.value, -choice.value)
+
+
 def test_a_provisional_choice_is_updated_until_the_choice_is_final():
     choice = ReadoutChoice(frames=4, min_frames=2, margin=0.03)
     turn = torch.tensor([0.0, 0.05, 0.0], dtype=torch.float64)
-    choice.add(1.0, [0.9, 0.8, 0.85], 3)
+    choice.add(1.0, HALF, 3)
     assert choice.value is None
-    choice.add(1.0, [0.9, 0.8, 0.85], 4)
+    choice.add(1.0, HALF, 4)
     assert 0.4 < choice.value < 0.6 and not choice.final and choice.informative(turn)
-    choice.add(1.0, [1.2, 1.3, 1.4], 5)
-    choice.add(1.0, [1.2, 1.3, 1.4], 6)  # the later frames outweigh: a global shutter after all
+    choice.add(1.0, at(lambda c: 1.2 + 0.2 * abs(c)), 5)
+    choice.add(1.0, at(lambda c: 1.2 + 0.2 * abs(c)), 6)  # the later frames outweigh: a global shutter after all
     assert choice.value == 0.0 and choice.final and choice.decided_at == 6 and not choice.informative(turn)
-    choice.add(1.0, [0.1, 0.1, 0.1], 7)  # final: nothing changes it
+    choice.add(1.0, at(lambda c: 0.1), 7)  # final: nothing changes it
     assert choice.value == 0.0 and choice.seen == 4
 
 
@@ -67,7 +97,7 @@ def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
     # Every candidate fits clearly worse, frame after frame (the HoloLens walk's evidence, per-frame log ratios
     # 0.06-0.7): final at min_frames, not after all the frames, and nothing is weighed after it.
     rng = torch.Generator().manual_seed(0)
-    worse = [[math.exp(0.1 * (i + 1) + 0.05 * float(torch.randn(1, generator=rng))) for i in range(3)]
+    worse = [at(lambda c: math.exp(0.1 + 0.4 * abs(c) + 0.05 * float(torch.randn(1, generator=rng))))
              for _ in range(12)]
     choice = ReadoutChoice(frames=40, min_frames=10, margin=0.03)
     for k, r in enumerate(worse[:9]):
@@ -79,21 +109,22 @@ def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
     # Evidence as worse on average but spread so wide that the mean is not sure to stay above -margin: it waits.
     spread = ReadoutChoice(frames=40, min_frames=10, margin=0.03)
     for k in range(20):
-        spread.add(1.0, [math.exp(0.1 + (0.6 if k % 2 else -0.6))] * 3, k)
+        spread.add(1.0, dict.fromkeys(CANDIDATES, math.exp(0.1 + (0.6 if k % 2 else -0.6))), k)
     assert not spread.final and spread.value == 0.0
     # A rolling shutter's readout is a value every frame refines: it always takes all the frames.
     rolling = ReadoutChoice(frames=40, min_frames=10, margin=0.03)
     for k in range(39):
-        rolling.add(1.0, [0.9, 0.8, 0.85], k)
+        rolling.add(1.0, HALF, k)
     assert not rolling.final and 0.4 < rolling.value < 0.6
-    rolling.add(1.0, [0.9, 0.8, 0.85], 39)
+    rolling.add(1.0, HALF, 39)
     assert rolling.final and rolling.decided_at == 39
 
 
-@pytest.mark.parametrize("readout", [0.5, 0.0])
+@pytest.mark.parametrize("readout", [0.5, -0.5, 0.0])
 def test_the_readout_is_found_from_a_turning_cameras_frames(readout):
     """Frames ray-cast row by row while the camera turns (a rolling shutter reading out over half the frame
-    interval, or a global shutter): the system finds about 0.5 in the first and 0 in the second; from its
+    interval, its rows top down or bottom up as in a camera upside down, or a global shutter): the system finds
+    about 0.5, -0.5 and 0; from its
     provisional choice on it rectifies the frames and keyframes by it and weighs the later frames against such
     keyframes."""
     frames = rolling_shutter_frames(readout, frames=12)
@@ -107,10 +138,10 @@ def test_the_readout_is_found_from_a_turning_cameras_frames(readout):
     choice = system.readout_choice
     assert all(r.tracking_ok for r in results)
     assert choice.decided_at is not None and choice.decided_at < len(frames) - 1
-    if readout > 0:
-        assert 0.35 <= choice.value <= 0.65
-        assert choice.summary()["mean_log_residual_ratio"]["0.5"] < -0.05
-        assert any(kf_readout > 0 for _, kf_readout in system._turn.values())  # made under the provisional one
+    if readout:
+        assert 0.35 <= readout / abs(readout) * choice.value <= 0.65
+        assert choice.summary()["mean_log_residual_ratio"][str(readout)] < -0.05
+        assert any(kf_readout * readout > 0 for _, kf_readout in system._turn.values())  # under the provisional one
     else:
         assert choice.value == 0.0
         assert all(v > 0.05 for v in choice.summary()["mean_log_residual_ratio"].values())
