@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import torch
@@ -22,6 +23,9 @@ class Frame:
         index: position of the frame in its sequence.
         valid: (H, W) bool, where ``image`` holds real pixels (False where e.g. undistortion left the image
             uncovered, filled with 0); ``None`` when every pixel is real.
+        readout_axis: along which image axis a rolling-shutter sensor's rows follow one another: "rows", or
+            "columns" where the reader turned the frames by a quarter turn (a phone's portrait video;
+            :mod:`codeslam.geometry.rolling_shutter`).
     """
 
     timestamp: float
@@ -31,6 +35,7 @@ class Frame:
     pose: torch.Tensor | None = None
     index: int = 0
     valid: torch.Tensor | None = None
+    readout_axis: str = "rows"
 
     @property
     def gray(self) -> torch.Tensor:
@@ -51,4 +56,4 @@ def resample_frame(frame: Frame, camera: PinholeCamera) -> Frame:
     if frame.depth is not None:
         depth = resample_depth(frame.depth[None, None].float(), frame.camera, camera)[0, 0]
     valid = resample_validity(frame.valid, frame.camera, camera)
-    return Frame(frame.timestamp, image, camera, depth, frame.pose, frame.index, valid)
+    return dataclasses.replace(frame, image=image, camera=camera, depth=depth, valid=valid)

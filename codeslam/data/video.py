@@ -10,11 +10,13 @@ A video brings no depth, no ground truth and often no calibration:
   or after each 1/fps step), then ``every`` keeps every N-th of those. Timestamps are the frames' presentation
   times in seconds from the first frame.
 * **Orientation.** A phone stores a portrait video as landscape frames plus a display rotation; frames are turned
-  as a player shows them, and the camera (calibrated or guessed) belongs to the turned frames.
+  as a player shows them, and the camera (calibrated or guessed) belongs to the turned frames. After a quarter
+  turn the sensor's rows run along the turned frame's columns: its frames say so (``Frame.readout_axis``), for
+  the rolling-shutter rectification of SLAM.
 
 Frames are decoded on demand: reading forward (as SLAM does) continues the decoder, reading backward seeks to the
-key frame before the wanted one. Rolling shutter and auto-exposure are not modelled here (the photometric tracker
-sees the exposure changes; see the README's notes on phone videos).
+key frame before the wanted one. Rolling shutter and auto-exposure are not modelled here (SLAM chooses a readout
+from the frames; the photometric tracker sees the exposure changes; see the README's notes on phone videos).
 """
 
 from __future__ import annotations
@@ -103,6 +105,7 @@ class VideoSequence(Sequence):
         times = (self._pts - self._pts[0]) * float(self._time_base)  # (N_all,) seconds from the first frame
         self.video_fps = info["fps"]
         self.rotation = info["rotation"]
+        self.readout_axis = "columns" if round(self.rotation / 90) % 2 else "rows"  # a quarter turn: sensor rows
         self._keep = subsample_times(times, fps, every)
         if len(self._keep) == 0:
             raise DatasetError(f"{path}: no frames left after --fps {fps} / --every {every}")
@@ -163,7 +166,7 @@ class VideoSequence(Sequence):
         valid = None
         if self.undistort:
             image, _, valid = undistort_frame(self.source_camera, image, None)
-        return Frame(float(self._stamps[i]), image, self._camera, None, None, i, valid)
+        return Frame(float(self._stamps[i]), image, self._camera, None, None, i, valid, self.readout_axis)
 
     # ---- decoding ---------------------------------------------------------------------------------------------
     def _open(self, seek_pts: int | None) -> None:

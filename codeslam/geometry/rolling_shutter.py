@@ -12,6 +12,14 @@ against its keyframe is off by 0.5-5 degrees, and that error follows the *differ
 velocities (correlation +0.62 with the network's depth, +0.69 with the sensor's), not the rotation between them
 (+0.11, +0.16) nor the frame's own speed: the signature of two images distorted by their own readouts.
 
+A phone filming in portrait stores landscape frames with a display rotation; turned upright, its sensor's rows
+run along the image's *columns*. ``axis`` says which: ``"rows"`` (the time of a pixel follows its y) or
+``"columns"`` (its x: ``s(x) = (x - (W - 1) / 2) / W``); a sensor read the other way along either axis (a camera
+upside down) is a negative readout, the sign of ``omega``'s factor. Measured (``docs/results/slam_table.md``,
+forty-sixth session): TUM fr1/rpy as a portrait video (H.264, display rotation 90) ended 0.0411 m off with a
+readout along the rows only, which settled as a global shutter; 0.0240 m with it along the columns (readout
+0.56), 0.0207 m as a landscape video.
+
 The maths here is our own (a rotation-only row warp, first order in the readout rotation: the row time of the
 rectified pixel is used for the source pixel, which differs from the exact one by s' omega, a second-order term).
 """
@@ -25,10 +33,18 @@ from codeslam.geometry.camera import PinholeCamera, pixel_grid, project, unproje
 from codeslam.geometry.image import pixels_to_grid
 from codeslam.geometry.lie import so3_exp
 
+AXES = ("rows", "columns")
+"""Along which image axis a sensor's rows follow one another: ``"rows"`` (its rows are the image's) or
+``"columns"`` (a portrait video turned upright from a landscape sensor)."""
 
-def row_times(rays: torch.Tensor, sensor: PinholeCamera) -> torch.Tensor:
+
+def row_times(rays: torch.Tensor, sensor: PinholeCamera, axis: str = "rows") -> torch.Tensor:
     """(..., 3) camera rays (any scale, z > 0) -> (...) the readout time s of the sensor row each ray falls on,
-    ``s = (y - (H - 1) / 2) / H`` in [-1/2, 1/2] over the sensor's rows (y = fy ray_y / ray_z + cy)."""
+    ``s = (y - (H - 1) / 2) / H`` in [-1/2, 1/2] over the sensor's rows (y = fy ray_y / ray_z + cy); with ``axis``
+    "columns" ``s = (x - (W - 1) / 2) / W`` (x = fx ray_x / ray_z + cx)."""
+    if axis == "columns":
+        x = sensor.fx * rays[..., 0] / rays[..., 2] + sensor.cx
+        return (x - 0.5 * (sensor.width - 1)) / sensor.width
     y = sensor.fy * rays[..., 1] / rays[..., 2] + sensor.cy
     return (y - 0.5 * (sensor.height - 1)) / sensor.height
 
@@ -40,22 +56,26 @@ def _row_rotations(s: torch.Tensor, omega: torch.Tensor) -> torch.Tensor:
 
 
 def rectify_points(uv: torch.Tensor, camera: PinholeCamera, sensor: PinholeCamera,
-                   omega: torch.Tensor) -> torch.Tensor:
-    """(N, 2) pixels of ``camera`` in a rolling-shutter image (rows read by ``sensor``) -> (N, 2) where a global
-    shutter at mid-readout would have seen the same scene points: ray r -> Exp(s(r) omega) r."""
+                   omega: torch.Tensor, axis: str = "rows") -> torch.Tensor:
+    """(N, 2) pixels of ``camera`` in a rolling-shutter image (rows read by ``sensor`` along ``axis``) -> (N, 2)
+    where a global shutter at mid-readout would have seen the same scene points: ray r -> Exp(s(r) omega) r."""
     params = camera.params(uv.dtype, uv.device)
     rays = unproject_jac_depth(uv, params)  # (N, 3)
-    R = _row_rotations(row_times(rays, sensor), omega)  # (N, 3, 3)
+    R = _row_rotations(row_times(rays, sensor, axis), omega)  # (N, 3, 3)
     return project((R @ rays.unsqueeze(-1)).squeeze(-1), params)
 
 
 def source_pixels(camera: PinholeCamera, sensor: PinholeCamera, omega: torch.Tensor,
-                  dtype: torch.dtype = torch.float32) -> torch.Tensor:
+                  dtype: torch.dtype = torch.float32, axis: str = "rows") -> torch.Tensor:
     """(H, W, 2): for each pixel of the rectified (global-shutter) image of ``camera``, where the rolling-shutter
     image shows its scene point: ray r' -> Exp(-s(r') omega) r' (first order: the row time of r' itself). The rays
-    of one pixel row share their sensor row (same optical axes), so one rotation per row."""
+    of one pixel row share their sensor row (same optical axes), so one rotation per row; with ``axis``
+    "columns" one per pixel column."""
     params = camera.params(torch.float64)
     rays = unproject_jac_depth(pixel_grid(camera.height, camera.width, torch.float64), params)  # (H, W, 3)
+    if axis == "columns":
+        R = _row_rotations(-row_times(rays[0], sensor, axis), omega.to(torch.float64))  # (W, 3, 3)
+        return project((R @ rays.unsqueeze(-1)).squeeze(-1), params).to(dtype)  # R_col r' for every pixel
     R = _row_rotations(-row_times(rays[:, 0], sensor), omega.to(torch.float64))  # (H, 3, 3)
     return project(rays @ R.transpose(-1, -2), params).to(dtype)  # R_row r' for every pixel of the row
 

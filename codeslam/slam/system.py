@@ -164,8 +164,9 @@ def _scaled_translation(T: torch.Tensor, s: float | None) -> torch.Tensor:
 
 def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Frame:
     """``frame`` (in the network's camera) as a global shutter at mid-readout would have seen it; ``sensor``: the
-    input camera, whose rows were read out one after the other while the camera turned by ``readout``."""
-    uv = source_pixels(frame.camera, sensor, readout)
+    input camera, whose rows were read out one after the other (along the frame's ``readout_axis``) while the
+    camera turned by ``readout``."""
+    uv = source_pixels(frame.camera, sensor, readout, axis=frame.readout_axis)
     image, inside = rectify_image(frame.image, uv)
     depth = None if frame.depth is None else rectify_image(frame.depth[None], uv, mode="nearest")[0][0]
     valid = inside
@@ -175,15 +176,15 @@ def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Fr
 
 
 def _depth_in_view(depth: torch.Tensor, sensor: PinholeCamera, camera: PinholeCamera,
-                   readout: torch.Tensor | None) -> torch.Tensor:
+                   readout: torch.Tensor | None, axis: str = "rows") -> torch.Tensor:
     """(H, W) depth of the input camera ``sensor`` -> the network's ``camera`` (nearest, as
     :func:`~codeslam.data.frame.resample_frame` resamples a depth), rectified by the rotation over the readout
-    ``readout`` as the frame's image was (:func:`_rectified`; None: not rectified)."""
+    ``readout`` (along the image ``axis``) as the frame's image was (:func:`_rectified`; None: not rectified)."""
     if sensor != camera:
         depth = resample_depth(depth[None, None].float(), sensor, camera)[0, 0]
     if readout is None:
         return depth
-    return rectify_image(depth[None], source_pixels(camera, sensor, readout), mode="nearest")[0][0]
+    return rectify_image(depth[None], source_pixels(camera, sensor, readout, axis=axis), mode="nearest")[0][0]
 
 
 class CodeSLAM:
@@ -704,7 +705,7 @@ class CodeSLAM:
         with self._aligning_threads(), self.clock("features"):  # as in _views
             keypoints = self.sparse.features_of(views.input_frame)
         net, _, sensor, depth = views.raw
-        return _Views(views.frame, self._rectified_features(keypoints, sensor, views.readout),
+        return _Views(views.frame, self._rectified_features(keypoints, sensor, views.readout, net.readout_axis),
                       (net, keypoints, sensor, depth), views.readout)
 
     def _direct_first(self) -> bool:
@@ -807,15 +808,16 @@ class CodeSLAM:
         net, features, sensor, _ = raw
         if readout is None:
             return _Views(net, features, raw, input_frame=input_frame)
-        return _Views(_rectified(net, sensor, readout), self._rectified_features(features, sensor, readout), raw,
-                      readout, input_frame)
+        return _Views(_rectified(net, sensor, readout),
+                      self._rectified_features(features, sensor, readout, net.readout_axis), raw, readout, input_frame)
 
     def _rectified_features(self, features: Features | None, sensor: PinholeCamera,
-                            readout: torch.Tensor | None) -> Features | None:
-        """Keypoints found in the input frame moved as its image is rectified by ``readout`` (None: not)."""
+                            readout: torch.Tensor | None, axis: str = "rows") -> Features | None:
+        """Keypoints found in the input frame moved as its image is rectified by ``readout`` (None: not), the
+        sensor's rows along the image ``axis``."""
         if readout is None or features is None or len(features) == 0:
             return features
-        uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, sensor, readout)
+        uv = rectify_points(torch.from_numpy(features.uv), self.sparse.camera, sensor, readout, axis)
         return dataclasses.replace(features, uv=uv.numpy())
 
     @staticmethod
@@ -827,7 +829,8 @@ class CodeSLAM:
         net, _, sensor, depth = views.raw
         if depth is None:
             return views.frame
-        return dataclasses.replace(views.frame, depth=_depth_in_view(depth, sensor, net.camera, views.readout))
+        return dataclasses.replace(views.frame, depth=_depth_in_view(depth, sensor, net.camera, views.readout,
+                                                                     net.readout_axis))
 
     def _make_keyframe(self, views: _Views, T_wc: torch.Tensor, kid: int, segment: int) -> MapKeyframe:
         """Decode the frame's depth model (the network's forward pass and code Jacobian, once per keyframe, Sec.

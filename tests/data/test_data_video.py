@@ -118,6 +118,10 @@ def test_display_rotation_turns_frames_as_a_player_does(tmp_path):
     frame = seq[0].image.mean(0).numpy()  # (W, H): turned a quarter counter-clockwise
     assert frame.shape == (W, H)
     assert frame[-8:, :8].mean() > 0.8 and frame[:8, :8].mean() < 0.2  # the block is now at the bottom left
+    # the sensor's rows (the stored frame's) are the turned frame's columns, for the rolling-shutter model
+    assert seq[0].readout_axis == "columns"
+    assert VideoSequence(write_video(tmp_path / "flipped.mp4", [img] * 3, rotation=180))[0].readout_axis == "rows"
+    assert VideoSequence(write_video(tmp_path / "landscape.mp4", [img] * 3))[0].readout_axis == "rows"
 
 
 def test_bad_videos_are_one_line_errors(tmp_path):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
 from codeslam.geometry.camera import canonical_camera
@@ -22,11 +23,12 @@ def _ray_cast(R_wc: torch.Tensor, cam, rows: torch.Tensor, cols: torch.Tensor) -
     return 0.5 + 0.2 * torch.sin(4.1 * X[..., 0] + 0.3) * torch.cos(3.3 * X[..., 1]) + 0.1 * torch.sin(7.7 * X[..., 1])
 
 
-def _render(cam, omega: torch.Tensor) -> torch.Tensor:
-    """(H, W) rolling-shutter image: row y seen by the camera turned by s(y) omega (exactly, row by row)."""
+def _render(cam, omega: torch.Tensor, axis: str = "rows") -> torch.Tensor:
+    """(H, W) rolling-shutter image: row y seen by the camera turned by s(y) omega (exactly, row by row); with
+    ``axis`` "columns" column x by s(x) omega."""
     v, u = torch.meshgrid(torch.arange(cam.height, dtype=torch.float64), torch.arange(cam.width, dtype=torch.float64),
                           indexing="ij")
-    s = (v - 0.5 * (cam.height - 1)) / cam.height
+    s = (v - 0.5 * (cam.height - 1)) / cam.height if axis == "rows" else (u - 0.5 * (cam.width - 1)) / cam.width
     R = so3_exp(s.reshape(-1, 1) * omega.reshape(1, 3)).reshape(cam.height, cam.width, 3, 3)
     return _ray_cast(R, cam, v, u)
 
@@ -41,30 +43,46 @@ def test_row_times_span_the_sensor_rows():
     assert math.isclose(float(row_times(bottom, cam)), float(row_times(bottom * 2, cam)), abs_tol=1e-12)
 
 
-def test_rectified_points_are_where_a_global_shutter_sees_the_scene_point():
+def test_column_times_span_the_sensor_rows_of_a_portrait_frame():
+    cam = canonical_camera(96, 128)  # a portrait frame: the sensor's 96 rows are its columns
+    left = torch.tensor([(0 - cam.cx) / cam.fx, 0.3, 1.0], dtype=torch.float64)
+    right = torch.tensor([(95 - cam.cx) / cam.fx, -0.2, 1.0], dtype=torch.float64)
+    assert math.isclose(float(row_times(left, cam, "columns")), -47.5 / 96, abs_tol=1e-12)
+    assert math.isclose(float(row_times(right, cam, "columns")), 47.5 / 96, abs_tol=1e-12)
+
+
+@pytest.mark.parametrize("axis", ["rows", "columns"])
+def test_rectified_points_are_where_a_global_shutter_sees_the_scene_point(axis):
     cam = canonical_camera(128, 96)
     uv = torch.tensor([[10.0, 5.0], [64.0, 48.0], [120.0, 90.0], [3.0, 80.0]], dtype=torch.float64)
-    s = (uv[:, 1] - 0.5 * (cam.height - 1)) / cam.height
+    if axis == "rows":
+        s = (uv[:, 1] - 0.5 * (cam.height - 1)) / cam.height
+    else:
+        s = (uv[:, 0] - 0.5 * (cam.width - 1)) / cam.width
     rays = torch.stack([(uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy, torch.ones(4, dtype=torch.float64)],
                        -1)
     d = (so3_exp(s[:, None] * OMEGA) @ rays.unsqueeze(-1)).squeeze(-1)  # the rows' rays in the mid-readout camera
     expected = torch.stack([cam.fx * d[:, 0] / d[:, 2] + cam.cx, cam.fy * d[:, 1] / d[:, 2] + cam.cy], -1)
-    got = rectify_points(uv, cam, cam, OMEGA)
+    got = rectify_points(uv, cam, cam, OMEGA, axis)
     assert torch.allclose(got, expected, atol=1e-9)
-    assert torch.allclose(rectify_points(uv, cam, cam, torch.zeros(3, dtype=torch.float64)), uv, atol=1e-12)
+    assert torch.allclose(rectify_points(uv, cam, cam, torch.zeros(3, dtype=torch.float64), axis), uv, atol=1e-12)
 
 
-def test_rectified_image_matches_the_global_shutter_image():
+@pytest.mark.parametrize("axis", ["rows", "columns"])
+def test_rectified_image_matches_the_global_shutter_image(axis):
     cam = canonical_camera(128, 96)
-    rs = _render(cam, OMEGA).float()
+    rs = _render(cam, OMEGA, axis).float()
     gs = _render(cam, torch.zeros(3, dtype=torch.float64)).float()
-    out, inside = rectify_image(rs[None], source_pixels(cam, cam, OMEGA))
+    out, inside = rectify_image(rs[None], source_pixels(cam, cam, OMEGA, axis=axis))
+    other = "columns" if axis == "rows" else "rows"
+    wrong, _ = rectify_image(rs[None], source_pixels(cam, cam, OMEGA, axis=other))
     inner = inside.clone()
     inner[:4], inner[-4:], inner[:, :4], inner[:, -4:] = False, False, False, False
     before = (rs - gs).abs()[inner].mean()
     after = (out[0] - gs).abs()[inner].mean()
     assert before > 0.01  # the readout moves the image by a few pixels (0.021 here)
     assert after < 0.1 * before
+    assert (wrong[0] - gs).abs()[inner].mean() > 0.5 * before  # rectified along the other axis: not
     same, all_inside = rectify_image(rs[None], source_pixels(cam, cam, torch.zeros(3)))
     assert torch.allclose(same, rs[None], atol=1e-5) and bool(all_inside.all())
 

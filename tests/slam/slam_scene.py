@@ -144,20 +144,24 @@ def _wall_texture(X: torch.Tensor, Y: torch.Tensor) -> torch.Tensor:
     return out.clamp(0, 1)
 
 
-def rolling_shutter_frames(readout: float, frames: int = 10, width: int = WIDTH, height: int = HEIGHT) -> list[Frame]:
+def rolling_shutter_frames(readout: float, frames: int = 10, width: int = WIDTH, height: int = HEIGHT,
+                           axis: str = "rows") -> list[Frame]:
     """A camera turning in place before a textured wall 3 m away, ray-cast pixel by pixel: row y of frame i is seen
-    at time i + readout (y - (H - 1) / 2) / H frames (``readout`` 0: a global shutter); depth and ground-truth
-    pose at mid-readout (exact)."""
+    at time i + readout (y - (H - 1) / 2) / H frames (``readout`` 0: a global shutter); with ``axis`` "columns"
+    column x at i + readout (x - (W - 1) / 2) / W (a portrait video's sensor rows, the frames marked so); depth
+    and ground-truth pose at mid-readout (exact)."""
     cam = canonical_camera(width, height)
     v, u = torch.meshgrid(torch.arange(height, dtype=torch.float64), torch.arange(width, dtype=torch.float64),
                           indexing="ij")
     rays = torch.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, torch.ones_like(u)], -1)
     out = []
     for i in range(frames):
-        d = (_turn(i + readout * (v - 0.5 * (height - 1)) / height) @ rays.unsqueeze(-1)).squeeze(-1)
+        row = (v - 0.5 * (height - 1)) / height if axis == "rows" else (u - 0.5 * (width - 1)) / width
+        d = (_turn(i + readout * row) @ rays.unsqueeze(-1)).squeeze(-1)
         depth = 3.0 / d[..., 2]  # the wall z = 3 in the world, the camera at the origin
         image = _wall_texture(depth * d[..., 0], depth * d[..., 1]).float()
         pose = torch.eye(4, dtype=torch.float64)
         pose[:3, :3] = _turn(torch.tensor(float(i), dtype=torch.float64))
-        out.append(Frame(1000.0 + i / 10, image[None].repeat(3, 1, 1), cam, depth.float(), pose, i))
+        out.append(Frame(1000.0 + i / 10, image[None].repeat(3, 1, 1), cam, depth.float(), pose, i,
+                         readout_axis=axis))
     return out

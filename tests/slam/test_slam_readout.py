@@ -120,14 +120,13 @@ def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
     assert rolling.final and rolling.decided_at == 39
 
 
-@pytest.mark.parametrize("readout", [0.5, -0.5, 0.0])
-def test_the_readout_is_found_from_a_turning_cameras_frames(readout):
+@pytest.mark.parametrize("readout, axis", [(0.5, "rows"), (-0.5, "rows"), (0.5, "columns"), (0.0, "rows")])
+def test_the_readout_is_found_from_a_turning_cameras_frames(readout, axis):
     """Frames ray-cast row by row while the camera turns (a rolling shutter reading out over half the frame
-    interval, its rows top down or bottom up as in a camera upside down, or a global shutter): the system finds
-    about 0.5, -0.5 and 0; from its
-    provisional choice on it rectifies the frames and keyframes by it and weighs the later frames against such
-    keyframes."""
-    frames = rolling_shutter_frames(readout, frames=12)
+    interval, its rows top down or bottom up as in a camera upside down, or along the columns as in a portrait
+    video; or a global shutter): the system finds about 0.5, -0.5, 0.5 and 0; from its provisional choice on it
+    rectifies the frames and keyframes by it and weighs the later frames against such keyframes."""
+    frames = rolling_shutter_frames(readout, frames=12, axis=axis)
     cfg = small_config(size=3)
     cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_estimate=True),
                               features=dataclasses.replace(cfg.features, enabled=False))
@@ -147,3 +146,19 @@ def test_the_readout_is_found_from_a_turning_cameras_frames(readout):
         assert all(v > 0.05 for v in choice.summary()["mean_log_residual_ratio"].values())
     assert system.readout == choice.value
     assert system.readout_summary() == choice.summary()
+
+
+def test_a_portrait_videos_readout_is_found_only_along_the_axis_its_frames_name():
+    """The same column-read frames marked as row-read (what a portrait video's frames said before the reader
+    named the axis): no row readout explains them, and the choice is a global shutter."""
+    frames = [dataclasses.replace(f, readout_axis="rows") for f in rolling_shutter_frames(0.5, frames=12,
+                                                                                             axis="columns")]
+    cfg = small_config(size=3)
+    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_estimate=True),
+                              features=dataclasses.replace(cfg.features, enabled=False))
+    system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
+    system.readout_choice = ReadoutChoice(frames=8, min_frames=4)
+    for f in frames:
+        system.process(f)
+    system.finish()
+    assert system.readout_choice.value == 0.0
