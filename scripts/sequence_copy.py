@@ -17,8 +17,16 @@ follows (principal point mirrored, ``cx' = W - 1 - cx``, ``cy' = H - 1 - cy``; t
 radial terms as they are) and so does its pose (``T_wc Rz(180)``: the camera's x and y axes reversed). A rolling
 shutter then reads the rows from the image's bottom up.
 
+``--video ROTATION`` writes a phone's kind of video instead: the reader's (undistorted) colour frames as an H.264
+``video.mp4`` at the sequence's median frame rate, stored as the sensor saw them with a display rotation of 0, 90,
+180 or 270 degrees (counter-clockwise, as a phone stores a portrait video: 90), a ``camera.yaml`` for the frames as
+a player turns them (``codeslam slam OUT/video.mp4 --camera OUT/camera.yaml``) and ``groundtruth.txt`` at the
+video's times (from 0) with the camera turned as the frames are (``codeslam eval``). A quarter turn puts the sensor's
+rows along the turned frames' columns.
+
     python scripts/sequence_copy.py ../shared/data/hololens_dvmvs OUT --order there-and-back
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --upside-down
+    python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --video 90
 """
 
 from __future__ import annotations
@@ -128,15 +136,64 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False) -> i
     return len(idx)
 
 
+QUARTER = torch.tensor([[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]],
+                       dtype=torch.float64)  # the camera turned as np.rot90 turns its image: x' = y, y' = -x
+
+
+def turned_camera(fx: float, fy: float, cx: float, cy: float, w: int, h: int, quarters: int) -> tuple:
+    """Pinhole intrinsics (fx, fy, cx, cy, W, H) of an image turned ``quarters`` times counter-clockwise (pixel
+    (u, v) -> (v, W - 1 - u) each time)."""
+    for _ in range(quarters % 4):
+        fx, fy, cx, cy, w, h = fy, fx, cy, w - 1 - cx, h, w
+    return fx, fy, cx, cy, w, h
+
+
+def write_video_copy(src: Path, out: Path, order: str, rotation: int) -> int:
+    """``out``/video.mp4, camera.yaml and groundtruth.txt (module docstring; written beside ``out``, then renamed
+    into place); returns the number of frames."""
+    from codeslam.data.video import write_video
+
+    seq = TumSequence(src)
+    idx = frame_order(len(seq), order)
+    fps = 1.0 / float(np.median(np.diff(seq.timestamps))) if len(seq) > 1 else 30.0
+    frames = [seq.frame(i, depth=False) for i in idx]
+    cam, quarters = frames[0].camera, rotation // 90
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))
+    try:
+        write_video(tmp / "video.mp4", [f.image for f in frames], fps=fps, rotation=rotation)
+        fx, fy, cx, cy, w, h = turned_camera(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, quarters)
+        (tmp / "camera.yaml").write_text(f"fx: {fx!r}\nfy: {fy!r}\ncx: {cx!r}\ncy: {cy!r}\nwidth: {w}\nheight: {h}\n")
+        poses = [(f.pose, j) for j, f in enumerate(frames) if f.pose is not None]
+        if poses:
+            turn = torch.linalg.matrix_power(QUARTER, quarters % 4)
+            write_tum(tmp / "groundtruth.txt", Trajectory(np.array([j / fps for _, j in poses]),
+                                                          torch.stack([T for T, _ in poses]) @ turn))
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return len(idx)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("src", type=Path, help="a TUM-layout sequence (rgb.txt, rgb/, depth.txt, groundtruth.txt)")
     ap.add_argument("out", type=Path, help="the copy's folder (replaced)")
     ap.add_argument("--order", choices=ORDERS, default="forward")
     ap.add_argument("--upside-down", action="store_true", help="images, depth, calibration and poses turned 180 deg")
+    ap.add_argument("--video", type=int, choices=(0, 90, 180, 270), default=None, metavar="ROTATION",
+                    help="an H.264 video with this display rotation (0, 90, 180, 270) instead of a TUM copy")
     a = ap.parse_args()
+    if a.video is not None and a.upside_down:
+        ap.error("--upside-down turns a TUM copy; a video's turn is --video 180")
     try:
-        n = write_copy(a.src, a.out, a.order, a.upside_down)
+        if a.video is not None:
+            n = write_video_copy(a.src, a.out, a.order, a.video)
+        else:
+            n = write_copy(a.src, a.out, a.order, a.upside_down)
     except (CodeSLAMError, OSError) as e:
         ap.error(str(e))
     print(f"{a.out}: {n} frames")

@@ -16,9 +16,10 @@ A phone filming in portrait stores landscape frames with a display rotation; tur
 run along the image's *columns*. ``axis`` says which: ``"rows"`` (the time of a pixel follows its y) or
 ``"columns"`` (its x: ``s(x) = (x - (W - 1) / 2) / W``); a sensor read the other way along either axis (a camera
 upside down) is a negative readout, the sign of ``omega``'s factor. Measured (``docs/results/slam_table.md``,
-forty-sixth session): TUM fr1/rpy as a portrait video (H.264, display rotation 90) ended 0.0411 m off with a
-readout along the rows only, which settled as a global shutter; 0.0240 m with it along the columns (readout
-0.56), 0.0207 m as a landscape video.
+forty-sixth session): TUM fr1/rpy as a portrait video (H.264, display rotation 90; four encodings at 29-31
+frames/s) ended 0.040-0.044 m off with a readout along the rows only, which settled as a global shutter; along
+the columns (readouts 0.50-0.60) 0.023-0.028 m in three of them and 0.045 m in the fourth; as a landscape video
+0.020-0.023 m.
 
 The maths here is our own (a rotation-only row warp, first order in the readout rotation: the row time of the
 rectified pixel is used for the source pixel, which differs from the exact one by s' omega, a second-order term).

@@ -112,10 +112,10 @@ class TrackerConfig:
     bottom up; a camera upside down reads them bottom up): TUM fr1/rpy turned by 180 degrees 0.0382 m, 5.98 deg
     -> 0.0236 m, 2.18 deg (its readout -0.75; with the dataset's depth 0.0274 m, 1.53 deg -> 0.0113 m, 1.13 deg,
     upright 0.0122 m, 1.03 deg); upright runs unchanged to the byte (session of 2026-12-05, forty-sixth). The rows
-    run along the frames' ``readout_axis`` (a portrait video's: the columns; TUM as one 0.0411 -> 0.0240 m). Costs
-    seven alignments at the finest level for each of the first 10 informative frames, four after (one direction
-    kept), none once chosen: on TUM 6.4 ms per frame averaged over the run at one thread (5.1 with positive
-    candidates alone)."""
+    run along the frames' ``readout_axis`` (a portrait video's: the columns; TUM as one, four encodings: 0.040-0.044
+    -> 0.023-0.028 m in three, 0.041 -> 0.045 m in one; as a landscape one 0.020-0.023 m). Costs seven alignments
+    at the finest level for each of the first 10 informative frames, four after (one direction kept), none once
+    chosen: on TUM 6.4 ms per frame averaged over the run at one thread (5.1 with positive candidates alone)."""
 
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)

@@ -90,3 +90,31 @@ def test_upside_down_every_world_point_lands_on_the_mirrored_pixel_with_the_same
         inner = (slice(None), slice(6, -6), slice(6, -6))  # where undistortion interpolates inside both images
         assert (b.image - a.image.flip(1, 2))[inner].abs().max() < 2e-3
         assert torch.equal(b.depth[6:-6, 6:-6] > 0, a.depth.flip(0, 1)[6:-6, 6:-6] > 0)
+
+
+@pytest.mark.parametrize("rotation", [90, 180])
+def test_a_video_copy_turned_by_its_display_rotation_is_the_same_camera_turned(tmp_path, rotation):
+    """``--video 90``: a phone's portrait video of the sequence. The reader turns its frames as a player does, the
+    copy's camera.yaml and poses are that turned camera's (a point at (u, v) of the source is at (v, W - 1 - u)),
+    and its frames say that the sensor's rows run along their columns."""
+    from codeslam.data.trajectory import read_tum
+    from codeslam.data.video import VideoSequence
+
+    _sequence(tmp_path / "src", 3, "40 42 30.5 21", size=(64, 48))
+    done = _run(tmp_path / "src", tmp_path / "out", "--video", rotation)
+    assert done.returncode == 0, done.stderr
+    src = TumSequence(tmp_path / "src")
+    video = VideoSequence(tmp_path / "out" / "video.mp4", camera=tmp_path / "out" / "camera.yaml")
+    gt = read_tum(tmp_path / "out" / "groundtruth.txt")
+    assert len(video) == len(gt) == 3 and np.allclose(gt.timestamps, video.timestamps, atol=1e-3)
+    cam_a, cam_b = src.camera, video.camera
+    X = torch.tensor([0.4, -0.3, 2.5, 1.0], dtype=torch.float64)
+    for i in range(3):
+        a, b = src.frame(i), video.frame(i)
+        assert b.readout_axis == ("columns" if rotation == 90 else "rows")
+        assert (b.image - torch.rot90(a.image, rotation // 90, (1, 2))).abs().mean() < 0.03  # H.264 near-lossless
+        xa, xb = torch.linalg.inv(a.pose) @ X, torch.linalg.inv(gt.poses[i]) @ X
+        ua, va = cam_a.fx * xa[0] / xa[2] + cam_a.cx, cam_a.fy * xa[1] / xa[2] + cam_a.cy
+        ub, vb = cam_b.fx * xb[0] / xb[2] + cam_b.cx, cam_b.fy * xb[1] / xb[2] + cam_b.cy
+        want = (float(va), 63 - float(ua)) if rotation == 90 else (63 - float(ua), 47 - float(va))
+        assert (float(ub), float(vb)) == pytest.approx(want)
