@@ -35,6 +35,8 @@ import argparse
 import os
 import shutil
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -48,6 +50,22 @@ from codeslam.errors import CodeSLAMError
 
 ORDERS = ("forward", "reverse", "there-and-back")
 UPSIDE_DOWN = torch.diag(torch.tensor([-1.0, -1.0, 1.0, 1.0], dtype=torch.float64))  # Rz(180): the camera's turn
+
+
+@contextmanager
+def staged(out: Path) -> Iterator[Path]:
+    """A folder beside ``out`` to write the copy in, renamed to ``out`` (replacing it) when the block ends, removed
+    when it fails: never a half-written copy."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))
+    try:
+        yield tmp
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 def frame_order(n: int, order: str) -> list[int]:
@@ -100,9 +118,7 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False) -> i
         depth = [d_files[j] for j in ib]
     idx = frame_order(len(stamps), order)
     new = stamps if order == "forward" else retimed(stamps, len(idx))
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))
-    try:
+    with staged(out) as tmp:
         for name in ("calib.txt", "LICENSE", "README.md"):
             if (src / name).is_file():
                 shutil.copy(src / name, tmp / name)
@@ -127,12 +143,6 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False) -> i
             if upside_down:
                 poses = poses @ UPSIDE_DOWN
             write_tum(tmp / "groundtruth.txt", Trajectory(new[keep], poses))
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return len(idx)
 
 
@@ -158,9 +168,7 @@ def write_video_copy(src: Path, out: Path, order: str, rotation: int) -> int:
     fps = 1.0 / float(np.median(np.diff(seq.timestamps))) if len(seq) > 1 else 30.0
     frames = [seq.frame(i, depth=False) for i in idx]
     cam, quarters = frames[0].camera, rotation // 90
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=out.name + ".", dir=out.parent))
-    try:
+    with staged(out) as tmp:
         write_video(tmp / "video.mp4", [f.image for f in frames], fps=fps, rotation=rotation)
         fx, fy, cx, cy, w, h = turned_camera(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, quarters)
         (tmp / "camera.yaml").write_text(f"fx: {fx!r}\nfy: {fy!r}\ncx: {cx!r}\ncy: {cy!r}\nwidth: {w}\nheight: {h}\n")
@@ -169,12 +177,6 @@ def write_video_copy(src: Path, out: Path, order: str, rotation: int) -> int:
             turn = torch.linalg.matrix_power(QUARTER, quarters % 4)
             write_tum(tmp / "groundtruth.txt", Trajectory(np.array([j / fps for _, j in poses]),
                                                           torch.stack([T for T, _ in poses]) @ turn))
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return len(idx)
 
 
