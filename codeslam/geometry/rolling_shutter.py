@@ -43,6 +43,8 @@ def row_times(rays: torch.Tensor, sensor: PinholeCamera, axis: str = "rows") -> 
     """(..., 3) camera rays (any scale, z > 0) -> (...) the readout time s of the sensor row each ray falls on,
     ``s = (y - (H - 1) / 2) / H`` in [-1/2, 1/2] over the sensor's rows (y = fy ray_y / ray_z + cy); with ``axis``
     "columns" ``s = (x - (W - 1) / 2) / W`` (x = fx ray_x / ray_z + cx)."""
+    if axis not in AXES:
+        raise ValueError(f"readout axis must be one of {AXES}, got {axis!r}")
     if axis == "columns":
         x = sensor.fx * rays[..., 0] / rays[..., 2] + sensor.cx
         return (x - 0.5 * (sensor.width - 1)) / sensor.width

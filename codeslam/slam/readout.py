@@ -9,12 +9,12 @@ is chosen from the images themselves: each informative frame (one that turns aga
 readout, 0 and each candidate (signed: the rows read top down or bottom up): its image rectified so that it keeps
 the distortion its keyframe keeps under that hypothesis (first order: the keyframe, rectified by ``s_k`` times its
 own turn ``w_k`` when it was made, keeps ``(c - s_k) w_k``; the frame, turning by ``w_f``, is rectified by
-``c (w_f - w_k) + s_k w_k``). The mean log ratio
-of each candidate's RMS residual to that of readout 0 picks the readout (the parabola's vertex through the best
-candidate and its neighbours) when the best beats readout 0 by more than ``margin``, else a global shutter:
-provisionally from ``min_frames`` such frames on, so that the frames after it are rectified, and finally after
-``frames``, or as soon as a global shutter is settled: from ``min_frames`` on, when every candidate's mean log ratio
-stays above ``-margin`` by ``confidence`` standard errors of the mean (the frames' spread). A global shutter is a
+``c (w_f - w_k) + s_k w_k``). The mean log ratio of each candidate's RMS residual to that of readout 0 picks the
+readout (the parabola's vertex through the best candidate and its neighbours) when the best beats readout 0 by
+more than ``margin``, else a global shutter: provisionally from ``min_frames`` such frames on, so that the frames
+after it are rectified, and finally after ``frames``, or as soon as a global shutter is settled: from
+``min_frames`` on, when every candidate's mean log ratio stays above ``-margin`` by ``confidence`` standard errors
+of the mean (the frames' spread). A global shutter is a
 yes or no that such evidence settles; a rolling shutter's readout is a value that every further frame refines, so
 that choice always takes ``frames``. Measured (1 thread, first 70 frames; ``docs/results/slam_table.md``, session of
 2026-12-02, thirtieth): the HoloLens walk and the generator's walk and corridor settle at their 10th informative

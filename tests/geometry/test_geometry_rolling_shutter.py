@@ -49,6 +49,8 @@ def test_column_times_span_the_sensor_rows_of_a_portrait_frame():
     right = torch.tensor([(95 - cam.cx) / cam.fx, -0.2, 1.0], dtype=torch.float64)
     assert math.isclose(float(row_times(left, cam, "columns")), -47.5 / 96, abs_tol=1e-12)
     assert math.isclose(float(row_times(right, cam, "columns")), 47.5 / 96, abs_tol=1e-12)
+    with pytest.raises(ValueError, match="readout axis"):
+        row_times(right, cam, "cols")  # a misspelt axis is not read as rows
 
 
 @pytest.mark.parametrize("axis", ["rows", "columns"])
