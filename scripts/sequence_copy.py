@@ -43,9 +43,8 @@ import cv2
 import numpy as np
 import torch
 
-from codeslam.data.association import associate
 from codeslam.data.trajectory import Trajectory, write_tum
-from codeslam.data.tum import TUM_MAX_DIFF_S, TumSequence, read_list_file
+from codeslam.data.tum import TumSequence
 from codeslam.errors import CodeSLAMError
 
 ORDERS = ("forward", "reverse", "there-and-back")
@@ -79,10 +78,14 @@ def frame_order(n: int, order: str) -> list[int]:
     raise ValueError(f"unknown order {order!r}")
 
 
+def frame_interval(stamps: np.ndarray) -> float:
+    """The median interval between ``stamps`` (s); 1/30 s for a single frame."""
+    return float(np.median(np.diff(stamps))) if len(stamps) > 1 else 1.0 / 30.0
+
+
 def retimed(stamps: np.ndarray, count: int) -> np.ndarray:
     """``count`` stamps from the first of ``stamps`` at their median interval."""
-    dt = float(np.median(np.diff(stamps))) if len(stamps) > 1 else 1.0
-    return stamps[0] + dt * np.arange(count)
+    return stamps[0] + frame_interval(stamps) * np.arange(count)
 
 
 def upside_down_calibration(seq: TumSequence) -> str:
@@ -106,16 +109,7 @@ def copy_image(src: Path, dst: Path, upside_down: bool) -> None:
 def write_copy(src: Path, out: Path, order: str, upside_down: bool = False) -> int:
     """The copy in ``out`` (written beside it, then renamed into place); returns its number of frames."""
     seq = TumSequence(src)  # the reader's own association of colour, depth and ground truth
-    stamps = seq.timestamps
-    rgb_stamps, rgb_files = read_list_file(src / "rgb.txt", src)
-    by_stamp = dict(zip(rgb_stamps.tolist(), rgb_files))
-    rgb = [by_stamp[float(t)] for t in stamps]
-    depth = None
-    if seq.has_depth:
-        d_stamps, d_files = read_list_file(src / "depth.txt", src)
-        ia, ib = associate(stamps, d_stamps, TUM_MAX_DIFF_S)
-        assert len(ia) == len(stamps), "the reader kept only frames with a depth map"
-        depth = [d_files[j] for j in ib]
+    stamps, rgb, depth = seq.timestamps, seq.image_files, seq.depth_files
     idx = frame_order(len(stamps), order)
     new = stamps if order == "forward" else retimed(stamps, len(idx))
     with staged(out) as tmp:
@@ -165,18 +159,17 @@ def write_video_copy(src: Path, out: Path, order: str, rotation: int) -> int:
 
     seq = TumSequence(src)
     idx = frame_order(len(seq), order)
-    fps = 1.0 / float(np.median(np.diff(seq.timestamps))) if len(seq) > 1 else 30.0
-    frames = [seq.frame(i, depth=False) for i in idx]
-    cam, quarters = frames[0].camera, rotation // 90
-    with staged(out) as tmp:
-        write_video(tmp / "video.mp4", [f.image for f in frames], fps=fps, rotation=rotation)
+    fps = 1.0 / frame_interval(seq.timestamps)
+    cam, quarters = seq.camera, rotation // 90
+    with staged(out) as tmp:  # frames read one at a time: the encoder keeps 8 bits, not every float image
+        write_video(tmp / "video.mp4", (seq.frame(i, depth=False).image for i in idx), fps=fps, rotation=rotation)
         fx, fy, cx, cy, w, h = turned_camera(cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, quarters)
         (tmp / "camera.yaml").write_text(f"fx: {fx!r}\nfy: {fy!r}\ncx: {cx!r}\ncy: {cy!r}\nwidth: {w}\nheight: {h}\n")
-        poses = [(f.pose, j) for j, f in enumerate(frames) if f.pose is not None]
-        if poses:
+        gt = seq.gt_poses
+        if gt is not None:
+            keep = [j for j, i in enumerate(idx) if not bool(gt[i].isnan().any())]
             turn = torch.linalg.matrix_power(QUARTER, quarters % 4)
-            write_tum(tmp / "groundtruth.txt", Trajectory(np.array([j / fps for _, j in poses]),
-                                                          torch.stack([T for T, _ in poses]) @ turn))
+            write_tum(tmp / "groundtruth.txt", Trajectory(np.array(keep) / fps, gt[[idx[j] for j in keep]] @ turn))
     return len(idx)
 
 

@@ -206,6 +206,16 @@ class TumSequence(Sequence):
     def has_depth(self) -> bool:
         return self._depth_files is not None
 
+    @property
+    def image_files(self) -> tuple[Path, ...]:
+        """Each frame's colour image file, as associated (frames without a depth map left out)."""
+        return tuple(self._rgb_files)
+
+    @property
+    def depth_files(self) -> tuple[Path, ...] | None:
+        """Each frame's depth map file, as associated with its colour image; None without depth."""
+        return None if self._depth_files is None else tuple(self._depth_files)
+
     def frame(self, i: int, depth: bool = True) -> Frame:
         i = frame_index(i, len(self))
         image = read_rgb(self._rgb_files[i])

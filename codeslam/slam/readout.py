@@ -88,9 +88,8 @@ class ReadoutChoice:
         on."""
         if self.seen < max(self.min_frames, 2):
             return False
-        for i, c in enumerate(CANDIDATES):
-            if c not in self.candidates:
-                continue
+        for c in self.candidates:
+            i = CANDIDATES.index(c)
             n, mean = self.count[i], self.log_ratio[i] / self.count[i]
             var = max(self.log_ratio_sq[i] - n * mean * mean, 0.0) / (n - 1)
             if mean - self.confidence * math.sqrt(var / n) < -self.margin:
@@ -109,9 +108,9 @@ class ReadoutChoice:
         if self.final or not (base > 0 and all(x > 0 and math.isfinite(x) for x in r)):
             return  # an alignment without overlap says nothing
         for c, x in zip(self.candidates, r):
-            i = CANDIDATES.index(c)
-            self.log_ratio[i] += math.log(x / base)
-            self.log_ratio_sq[i] += math.log(x / base) ** 2
+            i, y = CANDIDATES.index(c), math.log(x / base)
+            self.log_ratio[i] += y
+            self.log_ratio_sq[i] += y * y
             self.count[i] += 1
         self.seen += 1
         if self.seen >= min(self.min_frames, self.frames):

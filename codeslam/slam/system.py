@@ -176,7 +176,7 @@ def _rectified(frame: Frame, sensor: PinholeCamera, readout: torch.Tensor) -> Fr
 
 
 def _depth_in_view(depth: torch.Tensor, sensor: PinholeCamera, camera: PinholeCamera,
-                   readout: torch.Tensor | None, axis: str = "rows") -> torch.Tensor:
+                   readout: torch.Tensor | None, axis: str) -> torch.Tensor:
     """(H, W) depth of the input camera ``sensor`` -> the network's ``camera`` (nearest, as
     :func:`~codeslam.data.frame.resample_frame` resamples a depth), rectified by the rotation over the readout
     ``readout`` (along the image ``axis``) as the frame's image was (:func:`_rectified`; None: not rectified)."""
@@ -812,7 +812,7 @@ class CodeSLAM:
                       self._rectified_features(features, sensor, readout, net.readout_axis), raw, readout, input_frame)
 
     def _rectified_features(self, features: Features | None, sensor: PinholeCamera,
-                            readout: torch.Tensor | None, axis: str = "rows") -> Features | None:
+                            readout: torch.Tensor | None, axis: str) -> Features | None:
         """Keypoints found in the input frame moved as its image is rectified by ``readout`` (None: not), the
         sensor's rows along the image ``axis``."""
         if readout is None or features is None or len(features) == 0:

@@ -46,6 +46,10 @@ def test_tum_rpy_association_and_poses(tum_rpy):
     # README: colour and depth differ by at most 14 ms (mean 9 ms).
     dt = np.abs(seq.timestamps - seq.depth_timestamps)
     assert dt.max() <= 0.0145 and 0.005 < dt.mean() < 0.012
+    # the files behind each frame, as associated: named by their own stamps
+    assert len(seq.image_files) == len(seq.depth_files) == 190
+    assert all(abs(float(f.stem) - t) < 1e-6 for f, t in zip(seq.image_files, seq.timestamps))
+    assert all(abs(float(f.stem) - t) < 1e-6 for f, t in zip(seq.depth_files, seq.depth_timestamps))
     # README: the nearest ground-truth pose is at most 3.5 ms from each frame; the interpolated pose
     # must be close to it (the camera moves slowly over 3.5 ms).
     gt = read_tum(tum_rpy / "groundtruth.txt")

@@ -120,6 +120,16 @@ def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
     assert rolling.final and rolling.decided_at == 39
 
 
+def _choosing_system() -> CodeSLAM:
+    """A small system without keypoints that chooses the readout from 4 informative frames, finally after 8."""
+    cfg = small_config(size=3)
+    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_estimate=True),
+                              features=dataclasses.replace(cfg.features, enabled=False))
+    system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
+    system.readout_choice = ReadoutChoice(frames=8, min_frames=4)
+    return system
+
+
 @pytest.mark.parametrize("readout, axis", [(0.5, "rows"), (-0.5, "rows"), (0.5, "columns"), (0.0, "rows")])
 def test_the_readout_is_found_from_a_turning_cameras_frames(readout, axis):
     """Frames ray-cast row by row while the camera turns (a rolling shutter reading out over half the frame
@@ -127,11 +137,7 @@ def test_the_readout_is_found_from_a_turning_cameras_frames(readout, axis):
     video; or a global shutter): the system finds about 0.5, -0.5, 0.5 and 0; from its provisional choice on it
     rectifies the frames and keyframes by it and weighs the later frames against such keyframes."""
     frames = rolling_shutter_frames(readout, frames=12, axis=axis)
-    cfg = small_config(size=3)
-    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_estimate=True),
-                              features=dataclasses.replace(cfg.features, enabled=False))
-    system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
-    system.readout_choice = ReadoutChoice(frames=8, min_frames=4)
+    system = _choosing_system()
     results = [system.process(f) for f in frames]
     system.finish()
     choice = system.readout_choice
@@ -153,11 +159,7 @@ def test_a_portrait_videos_readout_is_found_only_along_the_axis_its_frames_name(
     named the axis): no row readout explains them, and the choice is a global shutter."""
     frames = [dataclasses.replace(f, readout_axis="rows") for f in rolling_shutter_frames(0.5, frames=12,
                                                                                              axis="columns")]
-    cfg = small_config(size=3)
-    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_estimate=True),
-                              features=dataclasses.replace(cfg.features, enabled=False))
-    system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
-    system.readout_choice = ReadoutChoice(frames=8, min_frames=4)
+    system = _choosing_system()
     for f in frames:
         system.process(f)
     system.finish()
