@@ -279,7 +279,8 @@ class CodeSLAM:
         a frame with depth keeps it in ``depth_gt``."""
         if kf.input_camera is None:
             raise CodeSLAMError(f"keyframe {kf.id} does not know the camera of its input frame")
-        return _depth_in_view(depth, kf.input_camera, kf.view.camera, kf.rectified_by).detach().cpu().float()
+        return _depth_in_view(depth, kf.input_camera, kf.view.camera, kf.rectified_by,
+                              kf.readout_axis).detach().cpu().float()
 
     @property
     def parallel(self) -> bool:
@@ -864,7 +865,7 @@ class CodeSLAM:
             uncertainty=None if b is None else b.detach().cpu().float(),
             depth_gt=None if frame.depth is None else frame.depth.detach().cpu().float(), segment=segment,
             code_basis=basis, free_scale=self.config.window.free_scale, input_camera=views.raw[2],
-            rectified_by=views.readout,
+            rectified_by=views.readout, readout_axis=views.raw[0].readout_axis,
         )
         if views.features is not None and len(views.features) > 0:
             kf.sparse = KeyframeFeatures(views.features, self.sparse.points(views.features, depth_zero))

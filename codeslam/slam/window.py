@@ -79,9 +79,9 @@ class MapKeyframe:
         code_basis: (C, k) when the code is optimised in a subspace of the network's code
             (``window.code_directions``): the network's code is ``code_basis @ code``; None otherwise.
         free_scale: the code's last entry is a log scale of the depth (``window.free_scale``), not the network's.
-        input_camera, rectified_by: the camera of the input frame it was made from and the rotation over the
-            readout its image was rectified by (None: not), to bring the input's depth into its view later
-            (:meth:`~codeslam.slam.system.CodeSLAM.keyframe_depth`).
+        input_camera, rectified_by, readout_axis: the camera of the input frame it was made from, the rotation over
+            the readout its image was rectified by (None: not) and the image axis its sensor's rows ran along, to
+            bring the input's depth into its view later (:meth:`~codeslam.slam.system.CodeSLAM.keyframe_depth`).
     """
 
     id: int
@@ -100,6 +100,7 @@ class MapKeyframe:
     free_scale: bool = False
     input_camera: PinholeCamera | None = None
     rectified_by: torch.Tensor | None = None
+    readout_axis: str = "rows"
     _median: tuple | None = field(default=None, init=False, repr=False, compare=False)  # see median_depth
 
     @property

@@ -164,3 +164,18 @@ def test_a_portrait_videos_readout_is_found_only_along_the_axis_its_frames_name(
         system.process(f)
     system.finish()
     assert system.readout_choice.value == 0.0
+
+
+def test_a_keyframes_depth_given_later_is_rectified_along_its_frames_axis():
+    """A run that reads no depth gives the keyframes the dataset's depth afterwards (``keyframe_depth``): it must
+    be rectified as the keyframe's image was, along the columns for a portrait video's frames, as the depth read
+    with the frame was (``depth_gt``)."""
+    frames = rolling_shutter_frames(0.5, frames=12, axis="columns")
+    system = _choosing_system()
+    for f in frames:
+        system.process(f)
+    system.finish()
+    rectified = [kf for kf in system.keyframes if kf.rectified_by is not None]
+    assert rectified and all(kf.readout_axis == "columns" for kf in system.keyframes)
+    for kf in rectified:
+        assert torch.equal(system.keyframe_depth(kf, frames[kf.frame_index].depth), kf.depth_gt)
