@@ -365,8 +365,10 @@ def fuse_keyframes(keyframes: list[MapKeyframe], camera: PinholeCamera):
 
 def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: PinholeCamera,
                     tracking: list[tuple[int, torch.Tensor | None]] | None = None) -> None:
-    """The keyframes for reconstruction as a compressed .npz (arrays only, no pickled objects); with ``tracking``
-    (:attr:`SLAMRun.keyframe_tracking`) each keyframe's tracked pose in its reference too."""
+    """The keyframes for reconstruction as an .npz (arrays only, no pickled objects); with ``tracking``
+    (:attr:`SLAMRun.keyframe_tracking`) each keyframe's tracked pose in its reference too. Not compressed: its
+    float images and depths deflate by under a third (the HoloLens walk's 88 keyframes: 30.4 MB, 21.6 MB
+    compressed), and compressing took 1.0 s of that run's whole process against 0.07 s written as they are."""
     depths = np.stack([k.depth_map().detach().cpu().float().numpy() for k in keyframes])  # (K, H, W)
     arrays = {
         "id": np.array([k.id for k in keyframes], dtype=np.int64),
@@ -387,7 +389,7 @@ def write_keyframes(path: str | Path, keyframes: list[MapKeyframe], camera: Pinh
         arrays[name] = np.stack([np.full((H, W), np.nan, np.float32) if getattr(k, name) is None
                                  else getattr(k, name).detach().cpu().float().numpy() for k in keyframes])
     with atomic_path(path) as tmp:
-        np.savez_compressed(tmp, **arrays)
+        np.savez(tmp, **arrays)
 
 
 def write_outputs(
