@@ -12,6 +12,10 @@ reader pairs with it), written as one row of ``rgb.txt``, ``depth.txt`` and ``gr
 are copied as they are, and the calibration with them, so the reader undistorts the copy as it does the source.
 Frames without a depth map (by the reader's association) are left out, as the reader leaves them out.
 
+``--repeat N`` plays that order N times over, one after the other (there and back N times: a loop per repeat, the
+turning frames shown once), as a long recording of the same room (`slam_table.md`, forty-seventh session); a
+frame shown again is a hard link to its first copy, so the copy takes the source's space once.
+
 ``--upside-down`` turns every image and depth map by 180 degrees: the camera mounted upside down. Its calibration
 follows (principal point mirrored, ``cx' = W - 1 - cx``, ``cy' = H - 1 - cy``; tangential distortion negated, the
 radial terms as they are) and so does its pose (``T_wc Rz(180)``: the camera's x and y axes reversed). A rolling
@@ -26,6 +30,7 @@ rows along the turned frames' columns.
 
     python scripts/sequence_copy.py ../shared/data/hololens_dvmvs OUT --order there-and-back
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --upside-down
+    python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --order there-and-back --repeat 10
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --video 90
 """
 
@@ -67,14 +72,16 @@ def staged(out: Path) -> Iterator[Path]:
         raise
 
 
-def frame_order(n: int, order: str) -> list[int]:
-    """Indices of the copy's frames into the source's ``n``."""
+def frame_order(n: int, order: str, repeat: int = 1) -> list[int]:
+    """Indices of the copy's frames into the source's ``n``, the order played ``repeat`` times."""
+    if repeat < 1:
+        raise ValueError(f"repeat must be at least 1, got {repeat}")
     if order == "forward":
-        return list(range(n))
+        return list(range(n)) * repeat
     if order == "reverse":
-        return list(range(n - 1, -1, -1))
-    if order == "there-and-back":
-        return list(range(n)) + list(range(n - 2, -1, -1))
+        return list(range(n - 1, -1, -1)) * repeat
+    if order == "there-and-back":  # each loop ends where the next begins: the first frame once between them
+        return (list(range(n)) + list(range(n - 2, 0, -1))) * repeat + [0] if n > 1 else [0] * repeat
     raise ValueError(f"unknown order {order!r}")
 
 
@@ -106,27 +113,32 @@ def copy_image(src: Path, dst: Path, upside_down: bool) -> None:
         raise OSError(f"cannot turn {src} into {dst}")
 
 
-def write_copy(src: Path, out: Path, order: str, upside_down: bool = False) -> int:
+def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repeat: int = 1) -> int:
     """The copy in ``out`` (written beside it, then renamed into place); returns its number of frames."""
     seq = TumSequence(src)  # the reader's own association of colour, depth and ground truth
     stamps, rgb, depth = seq.timestamps, seq.image_files, seq.depth_files
-    idx = frame_order(len(stamps), order)
-    new = stamps if order == "forward" else retimed(stamps, len(idx))
+    idx = frame_order(len(stamps), order, repeat)
+    new = stamps if order == "forward" and repeat == 1 else retimed(stamps, len(idx))
     with staged(out) as tmp:
         for name in ("calib.txt", "LICENSE", "README.md"):
             if (src / name).is_file():
                 shutil.copy(src / name, tmp / name)
         if upside_down:
             (tmp / "calib.txt").write_text(upside_down_calibration(seq))
-        what = ", ".join([f"order {order}"] + (["upside down"] if upside_down else []))
+        what = ", ".join([f"order {order}"] + ([f"{repeat} times"] if repeat > 1 else [])
+                         + (["upside down"] if upside_down else []))
         for kind, files in (("rgb", rgb), ("depth", depth)):
             if files is None:
                 continue
             (tmp / kind).mkdir()
-            rows = []
+            rows, first = [], {}  # source index -> its first copy's path
             for i, j in enumerate(idx):
                 name = f"{kind}/{new[i]:.6f}{files[j].suffix}"
-                copy_image(files[j], tmp / name, upside_down)
+                if j in first:  # shown again: the same file, inside the copy
+                    os.link(first[j], tmp / name)
+                else:
+                    copy_image(files[j], tmp / name, upside_down)
+                    first[j] = tmp / name
                 rows.append(f"{new[i]:.6f} {name}\n")
             head = f"# {src.name}, {what} (scripts/sequence_copy.py)\n"
             (tmp / f"{kind}.txt").write_text(head + "".join(rows))
@@ -152,13 +164,13 @@ def turned_camera(fx: float, fy: float, cx: float, cy: float, w: int, h: int, qu
     return fx, fy, cx, cy, w, h
 
 
-def write_video_copy(src: Path, out: Path, order: str, rotation: int) -> int:
+def write_video_copy(src: Path, out: Path, order: str, rotation: int, repeat: int = 1) -> int:
     """``out``/video.mp4, camera.yaml and groundtruth.txt (module docstring; written beside ``out``, then renamed
     into place); returns the number of frames."""
     from codeslam.data.video import write_video
 
     seq = TumSequence(src)
-    idx = frame_order(len(seq), order)
+    idx = frame_order(len(seq), order, repeat)
     fps = 1.0 / frame_interval(seq.timestamps)
     cam, quarters = seq.camera, rotation // 90
     with staged(out) as tmp:  # frames read one at a time: the encoder keeps 8 bits, not every float image
@@ -178,17 +190,20 @@ def main() -> None:
     ap.add_argument("src", type=Path, help="a TUM-layout sequence (rgb.txt, rgb/, depth.txt, groundtruth.txt)")
     ap.add_argument("out", type=Path, help="the copy's folder (replaced)")
     ap.add_argument("--order", choices=ORDERS, default="forward")
+    ap.add_argument("--repeat", type=int, default=1, metavar="N", help="play the order N times over (a long recording)")
     ap.add_argument("--upside-down", action="store_true", help="images, depth, calibration and poses turned 180 deg")
     ap.add_argument("--video", type=int, choices=(0, 90, 180, 270), default=None, metavar="ROTATION",
                     help="an H.264 video with this display rotation (0, 90, 180, 270) instead of a TUM copy")
     a = ap.parse_args()
     if a.video is not None and a.upside_down:
         ap.error("--upside-down turns a TUM copy; a video's turn is --video 180")
+    if a.repeat < 1:
+        ap.error(f"--repeat must be at least 1, got {a.repeat}")
     try:
         if a.video is not None:
-            n = write_video_copy(a.src, a.out, a.order, a.video)
+            n = write_video_copy(a.src, a.out, a.order, a.video, a.repeat)
         else:
-            n = write_copy(a.src, a.out, a.order, a.upside_down)
+            n = write_copy(a.src, a.out, a.order, a.upside_down, a.repeat)
     except (CodeSLAMError, OSError) as e:
         ap.error(str(e))
     print(f"{a.out}: {n} frames")

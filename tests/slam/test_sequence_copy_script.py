@@ -60,6 +60,36 @@ def test_the_copy_plays_each_frame_with_its_own_depth_and_pose_in_the_new_order_
     assert not list(tmp_path.glob("out.*"))  # no temporary folder left beside it
 
 
+@pytest.mark.parametrize("order, want", [
+    ("there-and-back", [0, 1, 2, 3, 2, 1, 0, 1, 2, 3, 2, 1, 0]),  # two loops, the first frame once between them
+    ("forward", [0, 1, 2, 3, 0, 1, 2, 3]),
+])
+def test_a_repeated_order_plays_every_frame_again_as_hard_links_while_time_runs_on(tmp_path, order, want):
+    _sequence(tmp_path / "src", 4)
+    done = _run(tmp_path / "src", tmp_path / "out", "--order", order, "--repeat", 2)
+    assert done.returncode == 0, done.stderr
+    src, out = TumSequence(tmp_path / "src"), TumSequence(tmp_path / "out")
+    assert len(out) == len(want)
+    assert np.allclose(np.diff(out.timestamps), 0.1)
+    for j, i in enumerate(want):
+        a, b = src.frame(i), out.frame(j)
+        assert torch.equal(a.image, b.image) and torch.equal(a.depth, b.depth)
+        assert torch.allclose(a.pose, b.pose, atol=1e-9)
+    first = {}  # a frame shown again is its first copy's file: the copy takes the source's space once
+    for kind, files in (("rgb", out.image_files), ("depth", out.depth_files)):
+        for j, i in enumerate(want):
+            ino = files[j].stat().st_ino
+            assert first.setdefault((kind, i), ino) == ino
+        assert len({f.stat().st_ino for f in files}) == 4
+
+
+def test_a_repeat_below_one_is_a_one_line_error(tmp_path):
+    _sequence(tmp_path / "src", 3)
+    done = _run(tmp_path / "src", tmp_path / "out", "--repeat", 0)
+    assert done.returncode == 2 and "--repeat" in done.stderr.strip().splitlines()[-1]
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_missing_sequence_is_a_one_line_error_and_writes_nothing(tmp_path):
     done = _run(tmp_path / "nowhere", tmp_path / "out", "--order", "reverse")
     assert done.returncode == 2
