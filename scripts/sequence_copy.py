@@ -135,7 +135,10 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
             for i, j in enumerate(idx):
                 name = f"{kind}/{new[i]:.6f}{files[j].suffix}"
                 if j in first:  # shown again: the same file, inside the copy
-                    os.link(first[j], tmp / name)
+                    try:
+                        os.link(first[j], tmp / name)
+                    except OSError:  # a file system without hard links: a second copy
+                        shutil.copy(first[j], tmp / name)
                 else:
                     copy_image(files[j], tmp / name, upside_down)
                     first[j] = tmp / name
