@@ -76,11 +76,9 @@ def source_pixels(camera: PinholeCamera, sensor: PinholeCamera, omega: torch.Ten
     "columns" one per pixel column."""
     params = camera.params(torch.float64)
     rays = unproject_jac_depth(pixel_grid(camera.height, camera.width, torch.float64), params)  # (H, W, 3)
-    if axis == "columns":
-        R = _row_rotations(-row_times(rays[0], sensor, axis), omega.to(torch.float64))  # (W, 3, 3)
-        return project((R @ rays.unsqueeze(-1)).squeeze(-1), params).to(dtype)  # R_col r' for every pixel
-    R = _row_rotations(-row_times(rays[:, 0], sensor), omega.to(torch.float64))  # (H, 3, 3)
-    return project(rays @ R.transpose(-1, -2), params).to(dtype)  # R_row r' for every pixel of the row
+    line = rays[:1] if axis == "columns" else rays[:, :1]  # (1, W, 3) or (H, 1, 3): one ray per sensor row
+    R = _row_rotations(-row_times(line, sensor, axis), omega.to(torch.float64))  # (1, W, 3, 3) or (H, 1, 3, 3)
+    return project((R @ rays.unsqueeze(-1)).squeeze(-1), params).to(dtype)  # R r' for every pixel of the line
 
 
 def rectify_image(image: torch.Tensor, uv: torch.Tensor, mode: str = "bilinear") -> tuple[torch.Tensor, torch.Tensor]:

@@ -51,6 +51,8 @@ def test_column_times_span_the_sensor_rows_of_a_portrait_frame():
     assert math.isclose(float(row_times(right, cam, "columns")), 47.5 / 96, abs_tol=1e-12)
     with pytest.raises(ValueError, match="readout axis"):
         row_times(right, cam, "cols")  # a misspelt axis is not read as rows
+    with pytest.raises(ValueError, match="readout axis"):
+        source_pixels(cam, cam, OMEGA, axis="cols")  # nor by the image's rectification
 
 
 @pytest.mark.parametrize("axis", ["rows", "columns"])
