@@ -245,6 +245,7 @@ class CodeSLAM:
         self._matches: FrameMatches | None = None  # the last frame's keypoints matched to the reference
         self._last_tracked: tuple | None = None  # (views, ref, sparse, record position) of a tracked non-keyframe
         self._lost = 0  # consecutive frames whose pose is only predicted
+        self._no_map_why = ""  # why the frames so far could not start the map (none has)
         self._prediction_error = math.inf  # the last frame's tracked pose from its prediction (_deviation)
         fcfg = config.features  # keypoints on demand (FeatureConfig.direct_first): the degrees, or 0 (never)
         on_demand = fcfg.enabled and (fcfg.direct_first == "always" or (fcfg.direct_first == "parallel" and parallel))
@@ -319,7 +320,7 @@ class CodeSLAM:
         direct_first = self._direct_first()
         with self._aligning_threads():  # the frame's resampling and keypoints, as its alignment (alignment_threads)
             views = self._views(frame, features=not direct_first)
-        if not self.keyframes:  # the first frame is the map's origin
+        if not self.keyframes:  # the first frame that can anchor a map is its origin
             return self._start_map(views)
         ref = self.ref
         T_kf_guess = self._predict(ref, frame.timestamp)
@@ -544,25 +545,29 @@ class CodeSLAM:
         """The motion model's pose, flagged; after ``recovery.lost_frames`` such frames a new map segment."""
         self._lost += 1
         self._matches = None
-        if self._lost > self.config.recovery.lost_frames and self._can_anchor(views):
+        if self._lost > self.config.recovery.lost_frames and not self._anchor_problem(views):
             self.segment += 1
             return self._restart(views, ref.T_wc @ T_kf_guess, track, PREDICTED,
                                  f"new segment after {self._lost - 1} lost frames ({reason})", rolled_back)
         return self._record(views.frame, ref, T_kf_guess, False, track=track, reason=reason, status=PREDICTED,
                             source="motion model", rolled_back=rolled_back)
 
-    def _can_anchor(self, views: _Views) -> bool:
-        """Whether a frame can start a new map segment: finite, textured (a black or blank frame would anchor a
-        map nothing can be tracked against) and, with features, with keypoints to match later frames to."""
+    def _anchor_problem(self, views: _Views, keypoints: bool = True) -> str:
+        """Why a frame cannot anchor a map ('' when it can): it must be finite and textured (a black or blank
+        frame would anchor a map nothing can be tracked against) and, with features and ``keypoints``, have
+        keypoints to match later frames to (a new segment's first frame, which ORB + PnP must relocalise)."""
         frame = views.frame
         if not image_is_finite(frame.image):
-            return False
+            return "non-finite pixels in the image"
         valid = frame.gray[0] if frame.valid is None else frame.gray[0][frame.valid]
-        if valid.numel() < 2 or float(valid.std()) < self.config.tracker.min_intensity_std:
-            return False
-        if self.config.features.enabled:
-            return views.features is not None and len(views.features) >= 2 * self.config.features.min_inliers
-        return True
+        std = float(valid.std()) if valid.numel() >= 2 else 0.0
+        if std < self.config.tracker.min_intensity_std:
+            return f"no texture (intensity std {std:.4f} below {self.config.tracker.min_intensity_std:g})"
+        if keypoints and self.config.features.enabled:
+            found = 0 if views.features is None else len(views.features)
+            if found < 2 * self.config.features.min_inliers:
+                return f"{found} keypoints, fewer than {2 * self.config.features.min_inliers}"
+        return ""
 
     def _restart(self, views: _Views, T_wc: torch.Tensor, track: TrackResult | None,
                  status: str, reason: str, rolled_back: str) -> FrameResult:
@@ -650,8 +655,13 @@ class CodeSLAM:
         return kid
 
     def _start_map(self, views: _Views) -> FrameResult:
-        if not image_is_finite(views.frame.image):
-            raise CodeSLAMError(f"frame {views.frame.index} (the first) has non-finite pixels; cannot start the map")
+        """The map's first keyframe, at the origin; a frame that cannot anchor it (:meth:`_anchor_problem`, its
+        keypoints aside: the first frames are tracked photometrically too) waits for the next frame instead. A
+        black first frame used to start the map: the frames after it failed against it until a new segment began
+        (one black frame before TUM fr1/rpy: frames 1-4 lost)."""
+        why = self._anchor_problem(views, keypoints=False)
+        if why:
+            return self._before_map(views.frame, why)
         with self.clock("decode"):
             kf = self._make_keyframe(views, torch.eye(4, dtype=torch.float64), self._new_id(), self.segment)
         self.mapper.start(kf)
@@ -659,6 +669,18 @@ class CodeSLAM:
         self.ref = kf
         return self._record(views.frame, kf, torch.eye(4, dtype=torch.float64), True, reason="first frame",
                             status=INITIALISING)
+
+    def _before_map(self, frame: Frame, why: str) -> FrameResult:
+        """A frame before the map has begun (``why`` it could not begin it): not tracked, placed at the origin
+        that the map's first keyframe (id 0, made later) will have."""
+        eye = torch.eye(4, dtype=torch.float64)
+        self._no_map_why = why
+        self._records.append(_FrameRecord(frame.index, float(frame.timestamp), 0, eye, False, None, 0, eye))
+        result = FrameResult(index=frame.index, timestamp=float(frame.timestamp), T_wc=eye.clone(), tracking_ok=False,
+                             status=PREDICTED, keyframe_id=0, is_keyframe=False,
+                             reason=f"no map: {why}", segment=self.segment)
+        self._results.append(result)
+        return result
 
     # ---- helpers --------------------------------------------------------------------------------------------
     def _check(self, frame: Frame) -> None:
@@ -945,6 +967,9 @@ class CodeSLAM:
         (:meth:`_interpolated`); then, with ``trajectory_smoothing``, the positions smoothed (:meth:`_smooth`)."""
         if not self._records:
             raise CodeSLAMError("no frame has been processed")
+        if not self.keyframes:
+            raise CodeSLAMError(f"no map: none of the {len(self._records)} frames could start one (the last: "
+                                f"{self._no_map_why})")
         poses = torch.stack([self._pose(r) for r in self._records])
         t = np.array([r.timestamp for r in self._records])
         if self.config.trajectory == "interpolated":

@@ -86,13 +86,35 @@ def test_a_corrupt_frame_is_flagged_and_the_system_continues():
     assert system.tracking_failures() == [3]
 
 
+def test_a_frame_that_cannot_anchor_the_map_waits_for_one_that_can():
+    # A black first frame used to become the map's origin: the frames after it failed against it until a new
+    # segment began (one black frame before TUM fr1/rpy: frames 1-4 lost). It is one lost frame now.
+    frames = synth_frames(3, 16, 10.0)[:6]
+    black = dataclasses.replace(frames[0], image=torch.zeros_like(frames[0].image))
+    corrupt = dataclasses.replace(frames[1], image=frames[1].image.clone())
+    corrupt.image[0, 0, 0] = float("inf")
+    system = CodeSLAM(small_config(), standin_depth_model(num_levels=3))
+    results = [system.process(f) for f in [black, corrupt, *frames[2:]]]
+    assert [r.status for r in results[:2]] == ["predicted", "predicted"]
+    assert "no texture" in results[0].reason and "non-finite" in results[1].reason
+    assert results[2].is_keyframe and results[2].reason == "first frame" and results[2].keyframe_id == 0
+    assert all(r.tracking_ok for r in results[3:])
+    assert system.tracking_failures() == [0, 1]
+    traj = system.trajectory()
+    assert len(traj.timestamps) == 6 and bool(torch.isfinite(traj.poses).all())
+    # before the map, a frame is placed at the origin its first keyframe has
+    assert torch.allclose(traj.poses[0], system.keyframes[0].T_wc.to(traj.poses.dtype))
+    # a sequence without a frame that can start a map is a user error, not a map anchored on nothing
+    system = CodeSLAM(small_config(), standin_depth_model(num_levels=3))
+    for f in frames[:3]:
+        assert not system.process(dataclasses.replace(f, image=torch.full_like(f.image, 0.5))).tracking_ok
+    with pytest.raises(CodeSLAMError, match="none of the 3 frames could start one .*no texture"):
+        system.trajectory()
+
+
 def test_bad_inputs_to_the_system_are_user_errors():
     frames = synth_frames(3, 16, 10.0)[:3]
     cfg = small_config()
-    first = dataclasses.replace(frames[0], image=frames[0].image.clone())
-    first.image[0, 0, 0] = float("inf")
-    with pytest.raises(CodeSLAMError, match="first"):
-        CodeSLAM(cfg, standin_depth_model(num_levels=3)).process(first)
     with pytest.raises(CodeSLAMError, match="pyramid levels"):
         CodeSLAM(cfg, standin_depth_model(num_levels=2)).process(frames[0])
     with pytest.raises(CodeSLAMError, match="depth maps"):
