@@ -324,8 +324,9 @@ class CodeSLAM:
             return self._start_map(views)
         ref = self.ref
         T_kf_guess = self._predict(ref, frame.timestamp)
-        if not image_is_finite(views.frame.image):
-            return self._lost_frame(views, ref, T_kf_guess, None, "non-finite pixels in the image")
+        blank = self._image_problem(views)
+        if blank:  # nothing to align: no rollback, no promoted keyframe, no relocalisation for it
+            return self._lost_frame(views, ref, T_kf_guess, None, blank)
         with self.clock("track"):  # Sec. 4.2: coarse-to-fine alignment, keyframe depth fixed; started from PnP
             track, sparse, source = self._track(views, ref, T_kf_guess)
         deviation = self._deviation(T_kf_guess, track, ref)
@@ -552,22 +553,29 @@ class CodeSLAM:
         return self._record(views.frame, ref, T_kf_guess, False, track=track, reason=reason, status=PREDICTED,
                             source="motion model", rolled_back=rolled_back)
 
-    def _anchor_problem(self, views: _Views, keypoints: bool = True) -> str:
-        """Why a frame cannot anchor a map ('' when it can): it must be finite and textured (a black or blank
-        frame would anchor a map nothing can be tracked against) and, with features and ``keypoints``, have
-        keypoints to match later frames to (a new segment's first frame, which ORB + PnP must relocalise)."""
+    def _image_problem(self, views: _Views) -> str:
+        """Why a frame's image can neither be tracked nor anchor a map ('' when it can): non-finite pixels, or no
+        texture (intensity std below ``tracker.min_intensity_std``: a black, white or blank frame). Such a frame
+        is lost at once: a black frame in mid-run used to be aligned, then made the last frame a keyframe
+        ("next frame lost") and undid the last window solve, as a failure caused by the map would."""
         frame = views.frame
         if not image_is_finite(frame.image):
             return "non-finite pixels in the image"
         valid = frame.gray[0] if frame.valid is None else frame.gray[0][frame.valid]
         std = float(valid.std()) if valid.numel() >= 2 else 0.0
         if std < self.config.tracker.min_intensity_std:
-            return f"no texture (intensity std {std:.4f} below {self.config.tracker.min_intensity_std:g})"
-        if keypoints and self.config.features.enabled:
+            return f"no texture in the frame (intensity std {std:.4f} below {self.config.tracker.min_intensity_std:g})"
+        return ""
+
+    def _anchor_problem(self, views: _Views) -> str:
+        """Why a frame cannot start a new map segment ('' when it can): :meth:`_image_problem`, and with features
+        too few keypoints to match later frames to (ORB + PnP must relocalise against it)."""
+        why = self._image_problem(views)
+        if not why and self.config.features.enabled:
             found = 0 if views.features is None else len(views.features)
             if found < 2 * self.config.features.min_inliers:
                 return f"{found} keypoints, fewer than {2 * self.config.features.min_inliers}"
-        return ""
+        return why
 
     def _restart(self, views: _Views, T_wc: torch.Tensor, track: TrackResult | None,
                  status: str, reason: str, rolled_back: str) -> FrameResult:
@@ -655,11 +663,11 @@ class CodeSLAM:
         return kid
 
     def _start_map(self, views: _Views) -> FrameResult:
-        """The map's first keyframe, at the origin; a frame that cannot anchor it (:meth:`_anchor_problem`, its
-        keypoints aside: the first frames are tracked photometrically too) waits for the next frame instead. A
-        black first frame used to start the map: the frames after it failed against it until a new segment began
-        (one black frame before TUM fr1/rpy: frames 1-4 lost)."""
-        why = self._anchor_problem(views, keypoints=False)
+        """The map's first keyframe, at the origin; a frame whose image cannot anchor it (:meth:`_image_problem`;
+        its keypoints are not counted: the first frames are tracked photometrically too) waits for the next frame
+        instead. A black first frame used to start the map: the frames after it failed against it until a new
+        segment began (one black frame before TUM fr1/rpy: frames 1-4 lost)."""
+        why = self._image_problem(views)
         if why:
             return self._before_map(views.frame, why)
         with self.clock("decode"):

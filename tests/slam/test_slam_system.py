@@ -112,6 +112,20 @@ def test_a_frame_that_cannot_anchor_the_map_waits_for_one_that_can():
         system.trajectory()
 
 
+def test_a_blank_frame_in_mid_run_is_lost_without_touching_the_map():
+    # A black frame used to be aligned, fail, make the frame before it a keyframe ("next frame lost") and undo the
+    # last window solve, as a failure caused by the map would; it has nothing to align.
+    frames = synth_frames(3, 16, 10.0)[:8]
+    frames[5] = dataclasses.replace(frames[5], image=torch.zeros_like(frames[5].image))
+    system = CodeSLAM(small_config(), standin_depth_model(num_levels=3))
+    results = [system.process(f) for f in frames]
+    assert results[5].status == "predicted" and results[5].reason.startswith("no texture in the frame")
+    assert results[5].track is None and not results[5].rolled_back and not results[5].is_keyframe
+    assert not any(r.reason == "next frame lost" for r in results)
+    assert len(system.keyframes) == sum(r.is_keyframe for r in results)
+    assert system.tracking_failures() == [5]
+
+
 def test_bad_inputs_to_the_system_are_user_errors():
     frames = synth_frames(3, 16, 10.0)[:3]
     cfg = small_config()
