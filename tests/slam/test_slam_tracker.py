@@ -15,6 +15,7 @@ from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
 from codeslam.sfm.keyframes import Keyframe
 from codeslam.sfm.warp import warp
 from codeslam.slam.depth import standin_depth_model, standin_true_code
+from codeslam.slam.features import pose_distance
 from codeslam.slam.tracker import PhotometricTracker
 
 D = torch.float64
@@ -113,6 +114,26 @@ def test_the_texture_the_alignment_had_is_reported():
                               torch.eye(4, dtype=D))
     assert res.ok and 0.05 < res.texture < 0.5, res.texture
     assert res_faint.texture == pytest.approx(0.1 * res.texture, rel=0.05), (res_faint.texture, res.texture)
+
+
+def test_a_view_with_a_few_grey_levels_of_shading_is_tracked_and_one_below_a_grey_level_is_not():
+    # A blank wall's shading (a texture of 0.007-0.0095 on the generator walk of seed 91) holds the pose; the
+    # threshold was 0.01 and those frames were lost. Below about one 8-bit grey level a view carries nothing.
+    frames, tracker, kf, code = _setup()
+    full = tracker.track(kf, code, frames[1].gray, frames[1].camera, torch.eye(4, dtype=D))
+
+    def track_at(texture: float):
+        c = texture / full.texture  # the same views with their contrast scaled about mid-grey
+        faint = Keyframe((0.5 + c * (frames[0].gray - 0.5)).float(), kf.camera, kf.decoder)
+        res = tracker.track(faint, code, 0.5 + c * (frames[1].gray - 0.5), frames[1].camera, torch.eye(4, dtype=D))
+        assert res.texture == pytest.approx(texture, rel=0.05)
+        return res
+
+    ref, wall, blank = track_at(0.05), track_at(0.007), track_at(0.002)
+    assert ref.ok and wall.ok, wall.reason
+    moved, turned = pose_distance(wall.T_kf, ref.T_kf)  # seven times fainter, the same pose
+    assert moved < 1e-3 and turned < 0.01, (moved, turned)
+    assert not blank.ok and "no texture" in blank.reason
 
 
 @pytest.mark.parametrize("solver", ["dedicated", "generic"])
