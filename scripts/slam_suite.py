@@ -97,6 +97,11 @@ SEQUENCES = {s.name: s for s in (
     Sequence("corr86", 120, "corridor", 10, 86),
     Sequence("walk87", 200, "walk", 30, 87),
     Sequence("hh88", 150, "handheld", 10, 88),
+    # seeds 91-92 (2026-12-06, forty-eighth session): a walk that faces a blank wall for 15 frames (its shading
+    # 0.007-0.0095; tracker.min_intensity_std was lowered to 0.004 on it, so it is not a held-out sequence), and a
+    # corridor with a dim camera's noise and blur
+    Sequence("walk91", 150, "walk", 10, 91),
+    Sequence("corr92", 150, "corridor", 10, 92, ("--noise", "0.03", "--blur", "0.7")),
     # seed 71: a walk of 39 m, about three times the other walks' paths (450 frames); rendered and run only with --long
     Sequence("walk71", 450, "walk", 10, 71),
 )}
@@ -131,6 +136,8 @@ RUNS = (
     ("ft55", "ft55", ()),
     ("walk56", "walk56", ()),
     *((name, name, ()) for name in ("walk81", "corr82", "hh83", "ft84", "walk85", "corr86", "walk87", "hh88")),
+    ("walk91", "walk91", ()),
+    ("corr92", "corr92", ()),
     # frames dropped (added 2026-12-05, forty-third session): four at the HoloLens walk's fastest turn (29 deg and
     # 36 cm between the frames either side), and a tenth or a fifth at random
     ("holo_gap4", "hololens_dvmvs", ("--frames", "0:120,124:188")),
