@@ -245,7 +245,6 @@ class CodeSLAM:
         self._matches: FrameMatches | None = None  # the last frame's keypoints matched to the reference
         self._last_tracked: tuple | None = None  # (views, ref, sparse, record position) of a tracked non-keyframe
         self._lost = 0  # consecutive frames whose pose is only predicted
-        self._no_map_why = ""  # why the frames so far could not start the map (none has)
         self._prediction_error = math.inf  # the last frame's tracked pose from its prediction (_deviation)
         fcfg = config.features  # keypoints on demand (FeatureConfig.direct_first): the degrees, or 0 (never)
         on_demand = fcfg.enabled and (fcfg.direct_first == "always" or (fcfg.direct_first == "parallel" and parallel))
@@ -682,7 +681,6 @@ class CodeSLAM:
         """A frame before the map has begun (``why`` it could not begin it): not tracked, placed at the origin
         that the map's first keyframe (id 0, made later) will have."""
         eye = torch.eye(4, dtype=torch.float64)
-        self._no_map_why = why
         self._records.append(_FrameRecord(frame.index, float(frame.timestamp), 0, eye, False, None, 0, eye))
         result = FrameResult(index=frame.index, timestamp=float(frame.timestamp), T_wc=eye.clone(), tracking_ok=False,
                              status=PREDICTED, keyframe_id=0, is_keyframe=False,
@@ -976,8 +974,8 @@ class CodeSLAM:
         if not self._records:
             raise CodeSLAMError("no frame has been processed")
         if not self.keyframes:
-            raise CodeSLAMError(f"no map: none of the {len(self._records)} frames could start one (the last: "
-                                f"{self._no_map_why})")
+            last = self._results[-1].reason.removeprefix("no map: ")  # _before_map's reason
+            raise CodeSLAMError(f"no map: none of the {len(self._records)} frames could start one (the last: {last})")
         poses = torch.stack([self._pose(r) for r in self._records])
         t = np.array([r.timestamp for r in self._records])
         if self.config.trajectory == "interpolated":
