@@ -13,7 +13,7 @@ import math
 
 import torch
 
-from codeslam.geometry.lie import se3_exp, se3_exp_host, se3_inverse, se3_log, se3_log_host
+from codeslam.geometry.lie import se3_exp, se3_exp_host, se3_inverse, se3_log, se3_log_host, so3_angle_host
 
 
 def project_to_se3(T: torch.Tensor) -> torch.Tensor:
@@ -46,6 +46,29 @@ def spread_correction(T_ref: torch.Tensor, T_next: torch.Tensor, fraction: torch
     xi = se3_log(se3_inverse(T_ref) @ T_next)  # (n, 6)
     f = fraction.to(torch.float64).clamp(0.0, 1.0).unsqueeze(-1)
     return project_to_se3(T_ref @ se3_exp(f * xi))
+
+
+def path_fractions(T_path: torch.Tensor, median_depth: float) -> torch.Tensor | None:
+    """How far along the tracked path from a keyframe to the next one each frame between them lies: T_path (n + 1,
+    4, 4) the frames' poses in the keyframe, in order, the last one the next keyframe's -> (n,) fractions in [0, 1]
+    of the path's length at each of the first n; None where the path has no length (no motion was tracked).
+
+    A step's length is its parallax, ``|t| / median_depth + angle`` (radians; :func:`~codeslam.slam.keyframes.
+    motion_since_keyframe`'s two measures, a rotation by ``a`` moving the scene about as far as a translation by
+    ``a`` times its depth), so a camera that stands still adds nothing. What :func:`spread_correction` spreads is
+    what the window changed after tracking, which grows with the motion tracked, not with the time: spread by time,
+    frames of a camera held still for 4 s between two keyframes turned by 0.5 deg and moved by 14 mm one after
+    another (the HoloLens walk with its frame 60 shown 40 times, with noise; docs/results/slam_table.md,
+    forty-ninth session)."""
+    T = T_path.detach().to(device="cpu", dtype=torch.float64)
+    prev = torch.cat([torch.eye(4, dtype=torch.float64)[None], T[:-1]])
+    steps = se3_inverse(prev) @ T  # (n + 1, 4, 4) one frame to the next
+    length = [float(s[:3, 3].norm()) / median_depth + so3_angle_host(s[:3, :3]) for s in steps]
+    cum = torch.tensor(length, dtype=torch.float64).cumsum(0)
+    total = float(cum[-1])
+    if not (math.isfinite(total) and total > 0.0):
+        return None
+    return (cum[:-1] / total).clamp(0.0, 1.0)
 
 
 def scale_motion(motion: torch.Tensor, s: float) -> torch.Tensor:

@@ -58,7 +58,7 @@ from codeslam.slam.features import Features, scaled_camera
 from codeslam.slam.frontend import FrameMatches, KeyframeFeatures, SparseTrack, SparseTracker
 from codeslam.slam.keyframes import MAPPING_BUSY, KeyframeDecision, decide_keyframe, motion_since_keyframe
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult, torch_threads
-from codeslam.slam.poses import project_to_se3, scale_motion, spread_correction
+from codeslam.slam.poses import path_fractions, project_to_se3, scale_motion, spread_correction
 from codeslam.slam.readout import ReadoutChoice
 from codeslam.slam.smoothing import smooth_positions
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
@@ -1000,7 +1000,8 @@ class CodeSLAM:
     def _interpolated(self, poses: torch.Tensor) -> torch.Tensor:
         """``poses`` (one per record, ``T_wk T_kf``) with each run of frames tracked against keyframe k, between
         k's frame and the frame that became keyframe k + 1 (tracked against k too, in the same map segment),
-        spread toward the poses that k + 1 implies (:func:`~codeslam.slam.poses.spread_correction`), by time.
+        spread toward the poses that k + 1 implies (:func:`~codeslam.slam.poses.spread_correction`), each by how far
+        along the motion tracked from k to k + 1 it lies (:func:`~codeslam.slam.poses.path_fractions`).
         Frames kept in a keyframe other than the one they were tracked against, and keyframes, keep their reference
         poses; so does every frame where k and k + 1 lie in different map segments."""
         poses = poses.clone()
@@ -1021,14 +1022,25 @@ class CodeSLAM:
                 continue
             # keyframe k where keyframe k + 1's final pose and its tracking against k put it
             T_k_next = self.keyframes[k + 1].T_wc @ se3_inverse(nxt.T_tracked)
-            t0, t1 = self._records[a].timestamp, nxt.timestamp
-            if t1 > t0:
-                f = [(self._records[i].timestamp - t0) / (t1 - t0) for i in inner]
-            else:  # no usable timestamps: by place
-                f = [(i - a) / (b - a) for i in inner]
             T_kf = torch.stack([self._records[i].T_kf for i in inner])
-            poses[inner] = spread_correction(poses[inner], T_k_next @ T_kf, torch.tensor(f, dtype=torch.float64))
+            on_path = sum(i < b for i in inner)  # those after k + 1's frame take the whole change
+            f = torch.ones(len(inner), dtype=torch.float64)
+            if on_path:
+                path = torch.cat([T_kf[:on_path].to(torch.float64), nxt.T_tracked.to(torch.float64)[None]])
+                by_motion = path_fractions(path, self.keyframes[k].median_depth())
+                f[:on_path] = by_motion if by_motion is not None else self._time_fractions(inner[:on_path], a, b)
+            poses[inner] = spread_correction(poses[inner], T_k_next @ T_kf, f)
         return poses
+
+    def _time_fractions(self, inner: list[int], a: int, b: int) -> torch.Tensor:
+        """The records ``inner`` placed between records ``a`` and ``b`` by time (by place without usable
+        timestamps): where :meth:`_interpolated` finds no motion tracked between two keyframes."""
+        t0, t1 = self._records[a].timestamp, self._records[b].timestamp
+        if t1 > t0:
+            f = [(self._records[i].timestamp - t0) / (t1 - t0) for i in inner]
+        else:
+            f = [(i - a) / (b - a) for i in inner]
+        return torch.tensor(f, dtype=torch.float64)
 
     def keyframe_trajectory(self) -> Trajectory:
         """The keyframes' final poses."""

@@ -18,7 +18,7 @@ from codeslam.sfm.keyframes import Keyframe
 from codeslam.sfm.solver import levenberg_marquardt
 from codeslam.sfm.variables import CODE, POSE, BlockId, LinearPrior, SfMState, VariableLayout
 from codeslam.slam.depth import standin_depth_model
-from codeslam.slam.poses import project_to_se3, spread_correction
+from codeslam.slam.poses import path_fractions, project_to_se3, spread_correction
 from codeslam.slam.velocity_prior import VelocityPrior
 from codeslam.slam.window import MapKeyframe, SlidingWindow, schur_complement
 
@@ -129,6 +129,20 @@ def test_spread_correction_moves_a_frame_along_the_geodesic_by_its_fraction():
     half = se3_inverse(T_ref[2]) @ out[2]  # half way: twice it is the whole change
     torch.testing.assert_close(half @ half, se3_inverse(T_ref[2]) @ T_next[2])
     torch.testing.assert_close(spread_correction(T_ref, T_ref, torch.full((3,), 0.3, dtype=D)), T_ref)
+
+
+def test_path_fractions_follow_the_tracked_motion_not_the_frames():
+    # A camera that moves 2 cm, stands still for three frames, then turns by 1 degree (2 cm of parallax at 1.146
+    # depth units) before the next keyframe: the frames held still share one fraction, the turn counts like the
+    # translation, and a path without motion has no fractions.
+    step = se3_exp(torch.tensor([0.02, 0.0, 0.0, 0.0, 0.0, 0.0], dtype=D))
+    turn = se3_exp(torch.tensor([0.0, 0.0, 0.0, 0.0, math.radians(1.0), 0.0], dtype=D))
+    path = torch.stack([step, step, step, step, step @ turn])  # 4 frames, then the next keyframe
+    f = path_fractions(path, median_depth=0.02 / math.radians(1.0))
+    torch.testing.assert_close(f, torch.full((4,), 0.5, dtype=D))
+    walk = torch.stack([se3_exp(torch.tensor([0.01 * (i + 1), 0, 0, 0, 0, 0], dtype=D)) for i in range(5)])
+    torch.testing.assert_close(path_fractions(walk, 2.0), torch.tensor([0.2, 0.4, 0.6, 0.8], dtype=D))
+    assert path_fractions(torch.eye(4, dtype=D).expand(3, 4, 4), 2.0) is None
 
 
 def _window(frames, cfg, T_wc):
