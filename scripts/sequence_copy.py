@@ -16,6 +16,13 @@ Frames without a depth map (by the reader's association) are left out, as the re
 turning frames shown once), as a long recording of the same room (`slam_table.md`, forty-seventh session); a
 frame shown again is a hard link to its first copy, so the copy takes the source's space once.
 
+``--hold F:K`` shows the copy's frame F again K times right after it (the order's frame F, counted from 0), each
+time with fresh Gaussian noise of ``--hold-noise`` grey levels (default 1.5; 0: the same file), at F's depth and pose:
+a camera held still for K frame intervals, as a person stops to look (`slam_table.md`, forty-ninth session). The
+frame was taken by a moving camera, so its motion blur and, with a rolling shutter, its skew stay in every copy,
+which a camera standing still would not show: a probe for global-shutter sequences (the HoloLens walk, the
+generator's).
+
 ``--upside-down`` turns every image and depth map by 180 degrees: the camera mounted upside down. Its calibration
 follows (principal point mirrored, ``cx' = W - 1 - cx``, ``cy' = H - 1 - cy``; tangential distortion negated, the
 radial terms as they are) and so does its pose (``T_wc Rz(180)``: the camera's x and y axes reversed). A rolling
@@ -32,6 +39,7 @@ rows along the turned frames' columns.
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --upside-down
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --order there-and-back --repeat 10
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --video 90
+    python scripts/sequence_copy.py ../shared/data/hololens_dvmvs OUT --hold 60:40
 """
 
 from __future__ import annotations
@@ -85,6 +93,26 @@ def frame_order(n: int, order: str, repeat: int = 1) -> list[int]:
     raise ValueError(f"unknown order {order!r}")
 
 
+def held(idx: list[int], frame: int, count: int) -> tuple[list[int], list[bool]]:
+    """``idx`` with its entry ``frame`` shown ``count`` more times right after it, and which entries are those
+    copies."""
+    if not 0 <= frame < len(idx) or count < 0:
+        raise ValueError(f"--hold {frame}:{count}: the frame must be one of the copy's {len(idx)} and the count >= 0")
+    out = idx[:frame + 1] + [idx[frame]] * count + idx[frame + 1:]
+    return out, [frame < i <= frame + count for i in range(len(out))]
+
+
+def noisy_copy(src: Path, dst: Path, sigma: float, seed: int) -> None:
+    """``src`` with Gaussian noise of ``sigma`` grey levels (of its own bit depth's range over 255) to ``dst``."""
+    img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise OSError(f"cannot read {src}")
+    top = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else 1.0
+    noise = np.random.default_rng(seed).normal(0.0, sigma * top / 255.0, img.shape)
+    if not cv2.imwrite(str(dst), np.clip(img + noise, 0, top).round().astype(img.dtype)):
+        raise OSError(f"cannot write {dst}")
+
+
 def frame_interval(stamps: np.ndarray) -> float:
     """The median interval between ``stamps`` (s); 1/30 s for a single frame."""
     return float(np.median(np.diff(stamps))) if len(stamps) > 1 else 1.0 / 30.0
@@ -113,12 +141,16 @@ def copy_image(src: Path, dst: Path, upside_down: bool) -> None:
         raise OSError(f"cannot turn {src} into {dst}")
 
 
-def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repeat: int = 1) -> int:
+def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repeat: int = 1,
+               hold: tuple[int, int] | None = None, hold_noise: float = 1.5) -> int:
     """The copy in ``out`` (written beside it, then renamed into place); returns its number of frames."""
     seq = TumSequence(src)  # the reader's own association of colour, depth and ground truth
     stamps, rgb, depth = seq.timestamps, seq.image_files, seq.depth_files
     idx = frame_order(len(stamps), order, repeat)
-    new = stamps if order == "forward" and repeat == 1 else retimed(stamps, len(idx))
+    still = [False] * len(idx)
+    if hold is not None:
+        idx, still = held(idx, *hold)
+    new = stamps if len(idx) == len(stamps) and order == "forward" else retimed(stamps, len(idx))
     with staged(out) as tmp:
         for name in ("calib.txt", "LICENSE", "README.md"):
             if (src / name).is_file():
@@ -126,6 +158,7 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
         if upside_down:
             (tmp / "calib.txt").write_text(upside_down_calibration(seq))
         what = ", ".join([f"order {order}"] + ([f"{repeat} times"] if repeat > 1 else [])
+                         + ([f"frame {hold[0]} held {hold[1]} more"] if hold else [])
                          + (["upside down"] if upside_down else []))
         for kind, files in (("rgb", rgb), ("depth", depth)):
             if files is None:
@@ -134,7 +167,9 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
             rows, first = [], {}  # source index -> its first copy's path
             for i, j in enumerate(idx):
                 name = f"{kind}/{new[i]:.6f}{files[j].suffix}"
-                if j in first:  # shown again: the same file, inside the copy
+                if kind == "rgb" and still[i] and hold_noise > 0:  # held still: the same view, new sensor noise
+                    noisy_copy(first[j], tmp / name, hold_noise, seed=i)
+                elif j in first:  # shown again: the same file, inside the copy
                     try:
                         os.link(first[j], tmp / name)
                     except OSError:  # a file system without hard links: a second copy
@@ -194,6 +229,9 @@ def main() -> None:
     ap.add_argument("out", type=Path, help="the copy's folder (replaced)")
     ap.add_argument("--order", choices=ORDERS, default="forward")
     ap.add_argument("--repeat", type=int, default=1, metavar="N", help="play the order N times over (a long recording)")
+    ap.add_argument("--hold", default=None, metavar="F:K", help="frame F shown K more times: a camera held still")
+    ap.add_argument("--hold-noise", type=float, default=1.5, metavar="SIGMA",
+                    help="grey levels of sensor noise in each held frame (0: the same image)")
     ap.add_argument("--upside-down", action="store_true", help="images, depth, calibration and poses turned 180 deg")
     ap.add_argument("--video", type=int, choices=(0, 90, 180, 270), default=None, metavar="ROTATION",
                     help="an H.264 video with this display rotation (0, 90, 180, 270) instead of a TUM copy")
@@ -202,12 +240,24 @@ def main() -> None:
         ap.error("--upside-down turns a TUM copy; a video's turn is --video 180")
     if a.repeat < 1:
         ap.error(f"--repeat must be at least 1, got {a.repeat}")
+    hold = None
+    if a.hold is not None:
+        try:
+            hold = tuple(int(x) for x in a.hold.split(":"))
+        except ValueError:
+            hold = ()
+        if len(hold) != 2:
+            ap.error(f"--hold wants FRAME:COUNT, got {a.hold!r}")
+        if a.video is not None:
+            ap.error("--hold writes a TUM copy, not a video")
+    if not (a.hold_noise >= 0):
+        ap.error(f"--hold-noise must be >= 0, got {a.hold_noise}")
     try:
         if a.video is not None:
             n = write_video_copy(a.src, a.out, a.order, a.video, a.repeat)
         else:
-            n = write_copy(a.src, a.out, a.order, a.upside_down, a.repeat)
-    except (CodeSLAMError, OSError) as e:
+            n = write_copy(a.src, a.out, a.order, a.upside_down, a.repeat, hold, a.hold_noise)
+    except (CodeSLAMError, OSError, ValueError) as e:
         ap.error(str(e))
     print(f"{a.out}: {n} frames")
 

@@ -148,3 +148,36 @@ def test_a_video_copy_turned_by_its_display_rotation_is_the_same_camera_turned(t
         ub, vb = cam_b.fx * xb[0] / xb[2] + cam_b.cx, cam_b.fy * xb[1] / xb[2] + cam_b.cy
         want = (float(va), 63 - float(ua)) if rotation == 90 else (63 - float(ua), 47 - float(va))
         assert (float(ub), float(vb)) == pytest.approx(want)
+
+
+def test_a_held_frame_is_shown_again_with_fresh_noise_at_its_own_depth_and_pose_as_time_runs_on(tmp_path):
+    _sequence(tmp_path / "src", 4)
+    done = _run(tmp_path / "src", tmp_path / "out", "--hold", "1:3", "--hold-noise", 2.0)
+    assert done.returncode == 0, done.stderr
+    src, out = TumSequence(tmp_path / "src"), TumSequence(tmp_path / "out")
+    want = [0, 1, 1, 1, 1, 2, 3]
+    assert len(out) == len(want)
+    assert np.allclose(np.diff(out.timestamps), 0.1)  # the camera stands still for three frame intervals
+    noise = []
+    for j, i in enumerate(want):
+        a, b = src.frame(i), out.frame(j)
+        assert torch.equal(a.depth, b.depth) and torch.allclose(a.pose, b.pose, atol=1e-9)
+        if j in (2, 3, 4):
+            noise.append(255.0 * (b.image - a.image))
+        else:
+            assert torch.equal(a.image, b.image)
+    noise = torch.stack(noise)
+    assert 1.0 < float(noise.std()) < 3.0  # 2 grey levels, rounded to whole ones
+    assert not torch.equal(noise[0], noise[1])  # each held frame its own noise
+    quiet = _run(tmp_path / "src", tmp_path / "quiet", "--hold", "1:3", "--hold-noise", 0)
+    assert quiet.returncode == 0, quiet.stderr
+    copy = TumSequence(tmp_path / "quiet")
+    assert all(torch.equal(copy.frame(j).image, src.frame(1).image) for j in (2, 3, 4))
+
+
+@pytest.mark.parametrize("hold", ["4:2", "1", "a:b", "1:-1"])
+def test_a_hold_outside_the_copy_is_a_one_line_error_and_writes_nothing(tmp_path, hold):
+    _sequence(tmp_path / "src", 4)
+    done = _run(tmp_path / "src", tmp_path / "out", "--hold", hold)
+    assert done.returncode == 2 and "--hold" in done.stderr.strip().splitlines()[-1]
+    assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
