@@ -23,6 +23,12 @@ frame was taken by a moving camera, so its motion blur and, with a rolling shutt
 which a camera standing still would not show: a probe for global-shutter sequences (the HoloLens walk, the
 generator's).
 
+``--occluder F:N`` draws a band over the copy's frames F to F + N - 1, ``--occluder-width`` of the image wide (default
+0.3) and as high as the image, sweeping at a constant speed from beyond the left edge to beyond the right one, with
+its own fixed texture (Gaussian noise blurred by 2 px, mean grey 60, ``--occluder-contrast`` grey levels of
+standard deviation, default 45; 0: a flat band): a person walking past the camera, which no depth map or pose
+sees (depth and poses are the source's).
+
 ``--upside-down`` turns every image and depth map by 180 degrees: the camera mounted upside down. Its calibration
 follows (principal point mirrored, ``cx' = W - 1 - cx``, ``cy' = H - 1 - cy``; tangential distortion negated, the
 radial terms as they are) and so does its pose (``T_wc Rz(180)``: the camera's x and y axes reversed). A rolling
@@ -40,6 +46,7 @@ rows along the turned frames' columns.
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --order there-and-back --repeat 10
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --video 90
     python scripts/sequence_copy.py ../shared/data/hololens_dvmvs OUT --hold 60:40
+    python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --occluder 100:20 --occluder-contrast 8
 """
 
 from __future__ import annotations
@@ -50,6 +57,7 @@ import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -113,6 +121,36 @@ def noisy_copy(src: Path, dst: Path, sigma: float, seed: int) -> None:
         raise OSError(f"cannot write {dst}")
 
 
+@dataclass(frozen=True)
+class Occluder:
+    """A band sweeping across frames ``first`` .. ``first + count - 1`` (module docstring)."""
+
+    first: int
+    count: int
+    width: float = 0.3
+    contrast: float = 45.0
+
+    def covers(self, i: int) -> bool:
+        return self.first <= i < self.first + self.count
+
+    def draw(self, src: Path, dst: Path, i: int) -> None:
+        """``src`` with the band at its place in frame ``i`` (of the copy) to ``dst``."""
+        img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise OSError(f"cannot read {src}")
+        h, w = img.shape[:2]
+        bw = max(1, round(self.width * w))
+        t = cv2.GaussianBlur(np.random.default_rng(0).normal(0.0, 1.0, (h, bw, 3)), (0, 0), 2.0)
+        band = np.clip(60.0 + self.contrast * t / t.std(), 0, 255)  # the same texture in every frame
+        x0 = round(-bw + (w + bw) * (i - self.first + 0.5) / self.count)  # its left edge, left to right
+        a, b = max(0, x0), min(w, x0 + bw)
+        top = float(np.iinfo(img.dtype).max) / 255.0 if img.dtype.kind in "ui" else 1.0 / 255.0
+        part = band[:, a - x0:b - x0] * top
+        img[:, a:b] = (part[..., :img.shape[2]] if img.ndim == 3 else part[..., 0]).round().astype(img.dtype)
+        if not cv2.imwrite(str(dst), img):
+            raise OSError(f"cannot write {dst}")
+
+
 def frame_interval(stamps: np.ndarray) -> float:
     """The median interval between ``stamps`` (s); 1/30 s for a single frame."""
     return float(np.median(np.diff(stamps))) if len(stamps) > 1 else 1.0 / 30.0
@@ -142,7 +180,7 @@ def copy_image(src: Path, dst: Path, upside_down: bool) -> None:
 
 
 def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repeat: int = 1,
-               hold: tuple[int, int] | None = None, hold_noise: float = 1.5) -> int:
+               hold: tuple[int, int] | None = None, hold_noise: float = 1.5, occluder: Occluder | None = None) -> int:
     """The copy in ``out`` (written beside it, then renamed into place); returns its number of frames."""
     seq = TumSequence(src)  # the reader's own association of colour, depth and ground truth
     stamps, rgb, depth = seq.timestamps, seq.image_files, seq.depth_files
@@ -150,6 +188,11 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
     still = [False] * len(idx)
     if hold is not None:
         idx, still = held(idx, *hold)
+    if occluder is not None and not (0 <= occluder.first and occluder.count >= 1
+                                     and occluder.first + occluder.count <= len(idx) and 0 < occluder.width <= 1
+                                     and occluder.contrast >= 0):
+        raise ValueError(f"--occluder {occluder.first}:{occluder.count} (width {occluder.width}, contrast "
+                         f"{occluder.contrast}): the frames must lie in the copy's {len(idx)}, the width in (0, 1]")
     new = stamps if len(idx) == len(stamps) and order == "forward" else retimed(stamps, len(idx))
     with staged(out) as tmp:
         for name in ("calib.txt", "LICENSE", "README.md"):
@@ -159,6 +202,8 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
             (tmp / "calib.txt").write_text(upside_down_calibration(seq))
         what = ", ".join([f"order {order}"] + ([f"{repeat} times"] if repeat > 1 else [])
                          + ([f"frame {hold[0]} held {hold[1]} more"] if hold else [])
+                         + ([f"an occluder over frames {occluder.first}-{occluder.first + occluder.count - 1}"]
+                            if occluder else [])
                          + (["upside down"] if upside_down else []))
         for kind, files in (("rgb", rgb), ("depth", depth)):
             if files is None:
@@ -167,7 +212,11 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
             rows, first = [], {}  # source index -> its first copy's path
             for i, j in enumerate(idx):
                 name = f"{kind}/{new[i]:.6f}{files[j].suffix}"
-                if kind == "rgb" and still[i] and hold_noise > 0:  # held still: the same view, new sensor noise
+                if kind == "rgb" and occluder is not None and occluder.covers(i):  # someone walks past
+                    occluder.draw(files[j], tmp / name, i)
+                    if upside_down:
+                        copy_image(tmp / name, tmp / name, True)
+                elif kind == "rgb" and still[i] and hold_noise > 0:  # held still: the same view, new sensor noise
                     noisy_copy(first[j], tmp / name, hold_noise, seed=i)
                 elif j in first:  # shown again: the same file, inside the copy
                     try:
@@ -232,6 +281,10 @@ def main() -> None:
     ap.add_argument("--hold", default=None, metavar="F:K", help="frame F shown K more times: a camera held still")
     ap.add_argument("--hold-noise", type=float, default=1.5, metavar="SIGMA",
                     help="grey levels of sensor noise in each held frame (0: the same image)")
+    ap.add_argument("--occluder", default=None, metavar="F:N", help="a band sweeping across frames F..F+N-1")
+    ap.add_argument("--occluder-width", type=float, default=0.3, metavar="W", help="its width over the image's")
+    ap.add_argument("--occluder-contrast", type=float, default=45.0, metavar="C",
+                    help="its texture's standard deviation in grey levels (0: flat)")
     ap.add_argument("--upside-down", action="store_true", help="images, depth, calibration and poses turned 180 deg")
     ap.add_argument("--video", type=int, choices=(0, 90, 180, 270), default=None, metavar="ROTATION",
                     help="an H.264 video with this display rotation (0, 90, 180, 270) instead of a TUM copy")
@@ -250,13 +303,22 @@ def main() -> None:
             ap.error(f"--hold wants FRAME:COUNT, got {a.hold!r}")
         if a.video is not None:
             ap.error("--hold writes a TUM copy, not a video")
+    occluder = None
+    if a.occluder is not None:
+        try:
+            first, count = (int(x) for x in a.occluder.split(":"))
+        except ValueError:
+            ap.error(f"--occluder wants FIRST:COUNT, got {a.occluder!r}")
+        if a.video is not None or a.hold is not None:
+            ap.error("--occluder writes a TUM copy, one probe at a time: not with --video or --hold")
+        occluder = Occluder(first, count, a.occluder_width, a.occluder_contrast)
     if not (a.hold_noise >= 0):
         ap.error(f"--hold-noise must be >= 0, got {a.hold_noise}")
     try:
         if a.video is not None:
             n = write_video_copy(a.src, a.out, a.order, a.video, a.repeat)
         else:
-            n = write_copy(a.src, a.out, a.order, a.upside_down, a.repeat, hold, a.hold_noise)
+            n = write_copy(a.src, a.out, a.order, a.upside_down, a.repeat, hold, a.hold_noise, occluder)
     except (CodeSLAMError, OSError, ValueError) as e:
         ap.error(str(e))
     print(f"{a.out}: {n} frames")

@@ -181,3 +181,37 @@ def test_a_hold_outside_the_copy_is_a_one_line_error_and_writes_nothing(tmp_path
     done = _run(tmp_path / "src", tmp_path / "out", "--hold", hold)
     assert done.returncode == 2 and "--hold" in done.stderr.strip().splitlines()[-1]
     assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("contrast", [45.0, 0.0])
+def test_an_occluder_sweeps_left_to_right_over_its_frames_and_leaves_depth_poses_and_other_frames(tmp_path, contrast):
+    _sequence(tmp_path / "src", 5, size=(40, 30))
+    done = _run(tmp_path / "src", tmp_path / "out", "--occluder", "1:3", "--occluder-width", 0.25,
+                "--occluder-contrast", contrast)
+    assert done.returncode == 0, done.stderr
+    src, out = TumSequence(tmp_path / "src"), TumSequence(tmp_path / "out")
+    assert len(out) == 5 and np.allclose(out.timestamps, src.timestamps)
+    centres = []
+    for i in range(5):
+        a, b = src.frame(i), out.frame(i)
+        assert torch.equal(a.depth, b.depth) and torch.allclose(a.pose, b.pose, atol=1e-9)
+        changed = (a.image != b.image).any(0).any(0)  # (W,) columns the band covers
+        if i in (1, 2, 3):
+            cols = torch.nonzero(changed).squeeze(1).float()
+            assert 1 <= len(cols) <= 10  # at most a quarter of the 40 columns
+            centres.append(float(cols.mean()))
+            band = 255.0 * b.image[:, :, changed]
+            assert abs(float(band.mean()) - 60.0) < 15.0
+            assert (float(band.std()) > 15.0) == (contrast > 0)  # textured, or flat
+        else:
+            assert not changed.any()
+    assert centres[0] < centres[1] < centres[2]  # left to right
+
+
+@pytest.mark.parametrize("args", [["--occluder", "4:2"], ["--occluder", "x"], ["--occluder", "1:2", "--hold", "1:1"],
+                                  ["--occluder", "1:2", "--occluder-width", "0"]])
+def test_an_occluder_outside_the_copy_is_a_one_line_error_and_writes_nothing(tmp_path, args):
+    _sequence(tmp_path / "src", 4)
+    done = _run(tmp_path / "src", tmp_path / "out", *args)
+    assert done.returncode == 2 and "--occluder" in done.stderr.strip().splitlines()[-1]
+    assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
