@@ -212,10 +212,9 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
             rows, first = [], {}  # source index -> its first copy's path
             for i, j in enumerate(idx):
                 name = f"{kind}/{new[i]:.6f}{files[j].suffix}"
-                if kind == "rgb" and occluder is not None and occluder.covers(i):  # someone walks past
-                    occluder.draw(files[j], tmp / name, i)
-                    if upside_down:
-                        copy_image(tmp / name, tmp / name, True)
+                if kind == "rgb" and occluder is not None and occluder.covers(i):  # someone walks past the camera
+                    copy_image(files[j], tmp / name, upside_down)
+                    occluder.draw(tmp / name, tmp / name, i)  # left to right in the copy as it is seen
                 elif kind == "rgb" and still[i] and hold_noise > 0:  # held still: the same view, new sensor noise
                     noisy_copy(first[j], tmp / name, hold_noise, seed=i)
                 elif j in first:  # shown again: the same file, inside the copy
