@@ -55,7 +55,7 @@ import argparse
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -110,15 +110,26 @@ def held(idx: list[int], frame: int, count: int) -> tuple[list[int], list[bool]]
     return out, [frame < i <= frame + count for i in range(len(out))]
 
 
+def rewrite_image(src: Path, dst: Path, change: Callable[[np.ndarray], np.ndarray], what: str) -> None:
+    """``change`` of the image in ``src`` (its bit depth and channels as stored) written to ``dst`` (may be
+    ``src``); an OSError naming ``what`` was done when either file fails."""
+    img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
+    if img is None or not cv2.imwrite(str(dst), change(img)):
+        raise OSError(f"cannot {what} {src} into {dst}")
+
+
+def grey_level(img: np.ndarray) -> float:
+    """One 8-bit grey level in the units of ``img``'s dtype (257 for 16 bits, 1/255 for floats)."""
+    return float(np.iinfo(img.dtype).max) / 255.0 if img.dtype.kind in "ui" else 1.0 / 255.0
+
+
 def noisy_copy(src: Path, dst: Path, sigma: float, seed: int) -> None:
     """``src`` with Gaussian noise of ``sigma`` grey levels (of its own bit depth's range over 255) to ``dst``."""
-    img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise OSError(f"cannot read {src}")
-    top = float(np.iinfo(img.dtype).max) if img.dtype.kind in "ui" else 1.0
-    noise = np.random.default_rng(seed).normal(0.0, sigma * top / 255.0, img.shape)
-    if not cv2.imwrite(str(dst), np.clip(img + noise, 0, top).round().astype(img.dtype)):
-        raise OSError(f"cannot write {dst}")
+    def noisy(img: np.ndarray) -> np.ndarray:
+        g = grey_level(img)
+        noise = np.random.default_rng(seed).normal(0.0, sigma * g, img.shape)
+        return np.clip(img + noise, 0, 255 * g).round().astype(img.dtype)
+    rewrite_image(src, dst, noisy, "add noise to")
 
 
 @dataclass(frozen=True)
@@ -135,20 +146,17 @@ class Occluder:
 
     def draw(self, src: Path, dst: Path, i: int) -> None:
         """``src`` with the band at its place in frame ``i`` (of the copy) to ``dst``."""
-        img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise OSError(f"cannot read {src}")
-        h, w = img.shape[:2]
-        bw = max(1, round(self.width * w))
-        t = cv2.GaussianBlur(np.random.default_rng(0).normal(0.0, 1.0, (h, bw, 3)), (0, 0), 2.0)
-        band = np.clip(60.0 + self.contrast * t / t.std(), 0, 255)  # the same texture in every frame
-        x0 = round(-bw + (w + bw) * (i - self.first + 0.5) / self.count)  # its left edge, left to right
-        a, b = max(0, x0), min(w, x0 + bw)
-        top = float(np.iinfo(img.dtype).max) / 255.0 if img.dtype.kind in "ui" else 1.0 / 255.0
-        part = band[:, a - x0:b - x0] * top
-        img[:, a:b] = (part[..., :img.shape[2]] if img.ndim == 3 else part[..., 0]).round().astype(img.dtype)
-        if not cv2.imwrite(str(dst), img):
-            raise OSError(f"cannot write {dst}")
+        def with_band(img: np.ndarray) -> np.ndarray:
+            h, w = img.shape[:2]
+            bw = max(1, round(self.width * w))
+            t = cv2.GaussianBlur(np.random.default_rng(0).normal(0.0, 1.0, (h, bw, 3)), (0, 0), 2.0)
+            band = np.clip(60.0 + self.contrast * t / t.std(), 0, 255)  # the same texture in every frame
+            x0 = round(-bw + (w + bw) * (i - self.first + 0.5) / self.count)  # its left edge, left to right
+            a, b = max(0, x0), min(w, x0 + bw)
+            part = band[:, a - x0:b - x0] * grey_level(img)
+            img[:, a:b] = (part[..., :img.shape[2]] if img.ndim == 3 else part[..., 0]).round().astype(img.dtype)
+            return img
+        rewrite_image(src, dst, with_band, "draw the occluder on")
 
 
 def frame_interval(stamps: np.ndarray) -> float:
@@ -174,9 +182,7 @@ def copy_image(src: Path, dst: Path, upside_down: bool) -> None:
     if not upside_down:
         shutil.copy(src, dst)
         return
-    img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
-    if img is None or not cv2.imwrite(str(dst), cv2.rotate(img, cv2.ROTATE_180)):
-        raise OSError(f"cannot turn {src} into {dst}")
+    rewrite_image(src, dst, lambda img: cv2.rotate(img, cv2.ROTATE_180), "turn")
 
 
 def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repeat: int = 1,
@@ -271,6 +277,15 @@ def write_video_copy(src: Path, out: Path, order: str, rotation: int, repeat: in
     return len(idx)
 
 
+def frame_pair(ap: argparse.ArgumentParser, text: str, flag: str, form: str) -> tuple[int, int]:
+    """``text`` "A:B" as two integers; a one-line usage error naming ``flag`` and its ``form`` otherwise."""
+    try:
+        first, second = (int(x) for x in text.split(":"))
+    except ValueError:
+        ap.error(f"{flag} wants {form}, got {text!r}")
+    return first, second
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("src", type=Path, help="a TUM-layout sequence (rgb.txt, rgb/, depth.txt, groundtruth.txt)")
@@ -292,22 +307,12 @@ def main() -> None:
         ap.error("--upside-down turns a TUM copy; a video's turn is --video 180")
     if a.repeat < 1:
         ap.error(f"--repeat must be at least 1, got {a.repeat}")
-    hold = None
-    if a.hold is not None:
-        try:
-            hold = tuple(int(x) for x in a.hold.split(":"))
-        except ValueError:
-            hold = ()
-        if len(hold) != 2:
-            ap.error(f"--hold wants FRAME:COUNT, got {a.hold!r}")
-        if a.video is not None:
-            ap.error("--hold writes a TUM copy, not a video")
+    hold = None if a.hold is None else frame_pair(ap, a.hold, "--hold", "FRAME:COUNT")
+    if hold is not None and a.video is not None:
+        ap.error("--hold writes a TUM copy, not a video")
     occluder = None
     if a.occluder is not None:
-        try:
-            first, count = (int(x) for x in a.occluder.split(":"))
-        except ValueError:
-            ap.error(f"--occluder wants FIRST:COUNT, got {a.occluder!r}")
+        first, count = frame_pair(ap, a.occluder, "--occluder", "FIRST:COUNT")
         if a.video is not None or a.hold is not None:
             ap.error("--occluder writes a TUM copy, one probe at a time: not with --video or --hold")
         occluder = Occluder(first, count, a.occluder_width, a.occluder_contrast)
