@@ -574,11 +574,13 @@ class SLAMConfig:
     the frames between a keyframe and the next one (tracked against it) take that change in proportion to how far
     along the tracked motion between the two they lie, by parallax (:func:`codeslam.slam.poses.path_fractions`;
     by time where no motion was tracked), so a camera held still stays still (by time, the HoloLens walk with a
-    4 s stop moved 0.5 deg and 14 mm through it; forty-ninth session). The live poses are the tracked ones
-    either way. Measured when it spread by time (the same runs written both ways, network depth, 1 thread): RPE
-    after the Sim(3) scale on TUM fr1/rpy 9.9 -> 9.1 mm, the HoloLens walk 26.0 -> 19.8, the generator walk 27.8
-    -> 14.1, hand-held 8.3 -> 2.5, corridor 41.3 -> 22.7, fast turn 4.0 -> 2.0; ATE Sim(3) 0.0163 -> 0.0160,
-    0.1398 -> 0.1376, 0.0632 -> 0.0607, 0.0119 -> 0.0054, 0.2475 -> 0.2471, 0.0138 -> 0.0146 m
+    4 s stop moved 0.5 deg and 14 mm through it; forty-ninth session), and a run of lost frames between two
+    frames with a pose in one map segment lies on the way from the one to the other, by time, instead of where
+    the motion model carried the last velocity (a covered lens; fiftieth session). The live poses are the
+    tracked and predicted ones either way. Measured when it spread by time (the same runs written both ways, network
+    depth, 1 thread): RPE after the Sim(3) scale on TUM fr1/rpy 9.9 -> 9.1 mm, the HoloLens walk 26.0 -> 19.8, the
+    generator walk 27.8 -> 14.1, hand-held 8.3 -> 2.5, corridor 41.3 -> 22.7, fast turn 4.0 -> 2.0; ATE Sim(3) 0.0163
+    -> 0.0160, 0.1398 -> 0.1376, 0.0632 -> 0.0607, 0.0119 -> 0.0054, 0.2475 -> 0.2471, 0.0138 -> 0.0146 m
     (docs/results/slam_table.md)."""
 
     trajectory_smoothing: float = 0.05
