@@ -269,6 +269,10 @@ class RecoveryConfig:
     """PnP inliers needed to accept a relocalisation (more than tracking needs: there is no prediction)."""
     max_candidates: int = 8
     """Keyframes tried per lost frame, nearest to the predicted pose first."""
+    appearance_candidates: int = 4
+    """Keyframes tried besides those, the ones whose thumbnail the lost frame looks most like, wherever they are
+    (PTAM's relocaliser, :mod:`codeslam.slam.thumbnails`): after a long loss the predicted pose says nothing.
+    0: none."""
     lost_frames: int = 3
     """Consecutive lost frames after which the next frame starts a new map segment at its predicted pose."""
     promote_previous: bool = True
@@ -276,8 +280,9 @@ class RecoveryConfig:
     and track the frame against it: a reference one frame old instead of one that has left the view."""
 
     def __post_init__(self) -> None:
-        if self.min_inliers < 6 or self.max_candidates < 1 or self.lost_frames < 1:
-            raise ConfigError("recovery.min_inliers must be >= 6, max_candidates and lost_frames >= 1")
+        if self.min_inliers < 6 or self.max_candidates < 1 or self.lost_frames < 1 or self.appearance_candidates < 0:
+            raise ConfigError("recovery.min_inliers must be >= 6, max_candidates and lost_frames >= 1, "
+                              "appearance_candidates >= 0")
 
 
 @dataclass(frozen=True)

@@ -20,7 +20,8 @@ map within seconds):
   prediction alone, as DSO does.
 * **Mapping** keeps its map: a window solve that fails :meth:`SlidingWindow.check`, or after which the next
   frame cannot be tracked while it can against the map before the solve, is rolled back.
-* **Recovery**: a frame that fails is relocalised against the window's and older keyframes (ORB + PnP); after
+* **Recovery**: a frame that fails is relocalised against the window's and older keyframes (ORB + PnP; those
+  nearest its predicted pose and those it looks like, by PTAM's small blurry images); after
   ``recovery.lost_frames`` lost frames the next one starts a new map segment at its predicted pose. Every
   frame's pose is marked ``tracked``, ``relocalised`` or ``predicted``.
 
@@ -61,6 +62,7 @@ from codeslam.slam.mapping import Mapper, MappingJob, MappingResult, torch_threa
 from codeslam.slam.poses import path_fractions, project_to_se3, scale_motion, spread_correction
 from codeslam.slam.readout import ReadoutChoice
 from codeslam.slam.smoothing import smooth_positions
+from codeslam.slam.thumbnails import most_alike, thumbnail
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
 from codeslam.slam.window import MapKeyframe, SlidingWindow, SparseSettings, WindowReport
 
@@ -245,6 +247,7 @@ class CodeSLAM:
         self._matches: FrameMatches | None = None  # the last frame's keypoints matched to the reference
         self._last_tracked: tuple | None = None  # (views, ref, sparse, record position) of a tracked non-keyframe
         self._lost = 0  # consecutive frames whose pose is only predicted
+        self._thumbnails: dict[int, torch.Tensor] = {}  # keyframe id -> its thumbnail, for relocalisation
         self._prediction_error = math.inf  # the last frame's tracked pose from its prediction (_deviation)
         fcfg = config.features  # keypoints on demand (FeatureConfig.direct_first): the degrees, or 0 (never)
         on_demand = fcfg.enabled and (fcfg.direct_first == "always" or (fcfg.direct_first == "parallel" and parallel))
@@ -513,16 +516,21 @@ class CodeSLAM:
         return self.ref is not ref
 
     def _relocalise(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor):
-        """Match a frame that failed against stored keyframes, nearest to its predicted pose first; a match in
-        the window is refined by the photometric alignment. Returns (keyframe, track, sparse, source, restart)
+        """Match a frame that failed against stored keyframes: those nearest to its predicted pose and those it
+        looks most like (:mod:`codeslam.slam.thumbnails`); a match in the window is refined by the photometric
+        alignment. Returns (keyframe, track, sparse, source, restart)
         with ``restart`` True when the keyframe has left the window, or None."""
         rcfg = self.config.recovery
         if not (rcfg.relocalise and self.config.features.enabled and views.features is not None):
             return None
         T_w_pred = ref.T_wc @ T_kf_guess
-        cands = [k for k in self.keyframes if k.sparse is not None]
-        cands.sort(key=lambda k: float((k.T_wc[:3, 3] - T_w_pred[:3, 3]).norm()))
-        cands = cands[:rcfg.max_candidates]
+        stored = [k for k in self.keyframes if k.sparse is not None]
+        stored.sort(key=lambda k: float((k.T_wc[:3, 3] - T_w_pred[:3, 3]).norm()))
+        cands, rest = stored[:rcfg.max_candidates], stored[rcfg.max_candidates:]
+        if rcfg.appearance_candidates > 0 and rest:  # and those it looks like, wherever the prediction is
+            alike = most_alike(thumbnail(views.frame.image), torch.stack([self._thumbnail(k) for k in rest]),
+                               rcfg.appearance_candidates)
+            cands += [rest[i] for i in alike]
         found = self.sparse.relocalise([(k.id, k.sparse) for k in cands], views.features, rcfg.min_inliers)
         if found is None:
             return None
@@ -539,6 +547,13 @@ class CodeSLAM:
         if not track.ok:
             return None
         return kf, track, sparse2 if sparse2 is not None and sparse2.ok else sparse, source, False
+
+    def _thumbnail(self, kf: MapKeyframe) -> torch.Tensor:
+        """Keyframe ``kf``'s thumbnail (:func:`~codeslam.slam.thumbnails.thumbnail`), made once."""
+        found = self._thumbnails.get(kf.id)
+        if found is None:
+            found = self._thumbnails[kf.id] = thumbnail(kf.view.image)
+        return found
 
     def _lost_frame(self, views: _Views, ref: MapKeyframe, T_kf_guess: torch.Tensor,
                     track: TrackResult | None, reason: str, rolled_back: str = "") -> FrameResult:

@@ -260,6 +260,33 @@ def test_relocalisation_finds_the_keyframe_that_sees_the_frame():
     assert tracker.relocalise(cands, feats(other), min_inliers=30) is None
 
 
+def test_a_camera_carried_back_to_a_place_it_saw_is_relocalised_there_by_what_it_looks_like():
+    # The walk preset's frames 0-39, then frames 3-7 again: the camera carried 3.3 m back to where it started. The
+    # motion model predicts it beyond frame 39, and the keyframes nearest that prediction (here two, a map larger
+    # than the keyframes tried) do not see the place: without the thumbnails frames 40-43 were lost and frame 44
+    # started a new map segment 3.5 m from the truth. The keyframe that looks like the frame is tried as well.
+    from slam_scene import preset_frames
+
+    from codeslam.geometry.lie import se3_inverse, so3_angle_host
+    from codeslam.slam.config import RecoveryConfig, SLAMConfig
+
+    frames = preset_frames(5, 44, "walk", 10.0)
+    order = list(range(40)) + list(range(3, 8))
+    seq = MemorySequence([dataclasses.replace(frames[j], timestamp=1000.0 + i / 10.0, index=i)
+                          for i, j in enumerate(order)])
+    config = SLAMConfig(trajectory_smoothing=0.0, recovery=RecoveryConfig(max_candidates=2))
+    system = CodeSLAM(config, standin_depth_model(code_offset_scale=0.3))
+    results = run_slam(seq, system, frames[0].camera).results
+    status = [r.status for r in results]
+    assert status[40] == "relocalised" and "predicted" not in status, status
+    assert {r.segment for r in results} == {0}
+    poses = system.trajectory().poses
+    for i in range(40, 45):  # where the camera was when it first passed there (the world is frame 0's camera)
+        T_true = se3_inverse(frames[0].pose) @ frames[order[i]].pose
+        assert float((poses[i][:3, 3] - T_true[:3, 3]).norm()) < 0.2
+        assert math.degrees(so3_angle_host(T_true[:3, :3].T @ poses[i][:3, :3])) < 2.0
+
+
 def test_the_frame_log_says_why_a_pose_rests_on_the_features_alone():
     from codeslam.slam.pipeline import frame_log_rows
     from codeslam.slam.system import FrameResult
