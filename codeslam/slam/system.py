@@ -140,6 +140,7 @@ class _FrameRecord:
     affine: torch.Tensor | None
     tracked_id: int
     T_tracked: torch.Tensor
+    relocalised: bool = False  # its pose was found by relocalisation: no velocity from the frame before
 
 
 @dataclass
@@ -945,8 +946,13 @@ class CodeSLAM:
         keyframe, the motion is taken as the two were tracked against their common keyframe: its pose now is the
         window's, and the window's correction of it is not the camera's motion. (On the generator's fast turn a
         window moved such a keyframe 7 cm while the camera moved 2 mm; with the motion prior on, the next 60 frames
-        kept moving 6-9 cm per frame.)"""
+        kept moving 6-9 cm per frame.) None as well from a relocalised frame on until the next frame is tracked:
+        the step to a relocalised pose is where the estimate was wrong, or where the camera was carried, not the
+        camera's velocity (TUM fr1/rpy carried from frame 149 back to frame 20: that step taken as the velocity
+        put the next two frames off, each relocalised again, and the map 13 times too large afterwards)."""
         for prev, cur in zip(reversed(self._records[:-1]), reversed(self._records)):
+            if cur.relocalised:
+                return None
             if prev.ok and cur.ok:
                 dt = cur.timestamp - prev.timestamp
                 if cur.keyframe_id != cur.tracked_id and prev.tracked_id == cur.tracked_id:
@@ -969,7 +975,8 @@ class CodeSLAM:
             self._keyframe_record[kf.id] = len(self._records)
         affine = track.affine if (ok and track is not None and not is_kf) else None
         T_kf = T_kf.to(torch.float64)
-        rec = _FrameRecord(frame.index, float(frame.timestamp), kf.id, T_kf, ok, affine, kf.id, T_kf)
+        rec = _FrameRecord(frame.index, float(frame.timestamp), kf.id, T_kf, ok, affine, kf.id, T_kf,
+                           relocalised=status == RELOCALISED)
         self._records.append(rec)
         if status == TRACKED and len(self.keyframes) < 2:
             status = INITIALISING
