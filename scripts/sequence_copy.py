@@ -29,6 +29,13 @@ its own fixed texture (Gaussian noise blurred by 2 px, mean grey 60, ``--occlude
 standard deviation, default 45; 0: a flat band): a person walking past the camera, which no depth map or pose
 sees (depth and poses are the source's).
 
+``--cover F:N`` shows a covered lens in the copy's frames F to F + N - 1: grey level 3 with Gaussian noise of one grey
+level, while depth and poses go on as the source's (the camera moves under the cover; `slam_table.md`, fiftieth
+session). ``--play SPEC`` plays the source frames listed, in that order, retimed as ``--order`` retimes them:
+comma-separated parts, each one index ``I`` or a range ``START:END`` (END excluded), in any order and as often as
+wanted; ``--play 0:100,20:70`` is a camera carried back from frame 99 to frame 20 within one frame interval (a
+kidnapped camera, which the relocalisation must find again).
+
 ``--upside-down`` turns every image and depth map by 180 degrees: the camera mounted upside down. Its calibration
 follows (principal point mirrored, ``cx' = W - 1 - cx``, ``cy' = H - 1 - cy``; tangential distortion negated, the
 radial terms as they are) and so does its pose (``T_wc Rz(180)``: the camera's x and y axes reversed). A rolling
@@ -47,6 +54,8 @@ rows along the turned frames' columns.
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --video 90
     python scripts/sequence_copy.py ../shared/data/hololens_dvmvs OUT --hold 60:40
     python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --occluder 100:20 --occluder-contrast 8
+    python scripts/sequence_copy.py ../shared/data/tum_fr1_rpy OUT --cover 60:30
+    python scripts/sequence_copy.py ../shared/data/hololens_dvmvs OUT --play 0:100,20:70
 """
 
 from __future__ import annotations
@@ -110,6 +119,22 @@ def held(idx: list[int], frame: int, count: int) -> tuple[list[int], list[bool]]
     return out, [frame < i <= frame + count for i in range(len(out))]
 
 
+def played(spec: str, n: int) -> list[int]:
+    """``--play`` text -> source frame indices in the order given (module docstring); ValueError naming the part
+    that is not an index or a range of the sequence's ``n`` frames."""
+    out = []
+    for part in spec.split(","):
+        try:
+            bounds = [int(x) for x in part.split(":")]
+        except ValueError:
+            raise ValueError(f"--play {spec!r}: {part!r} is neither an index nor START:END") from None
+        first, end = (bounds[0], bounds[0] + 1) if len(bounds) == 1 else bounds if len(bounds) == 2 else (0, -1)
+        if not 0 <= first < end <= n:
+            raise ValueError(f"--play {spec!r}: {part!r} is not a non-empty part of the sequence's {n} frames")
+        out += range(first, end)
+    return out
+
+
 def rewrite_image(src: Path, dst: Path, change: Callable[[np.ndarray], np.ndarray], what: str) -> None:
     """``change`` of the image in ``src`` (its bit depth and channels as stored) written to ``dst`` (may be
     ``src``); an OSError naming ``what`` was done when either file fails."""
@@ -121,6 +146,15 @@ def rewrite_image(src: Path, dst: Path, change: Callable[[np.ndarray], np.ndarra
 def grey_level(img: np.ndarray) -> float:
     """One 8-bit grey level in the units of ``img``'s dtype (257 for 16 bits, 1/255 for floats)."""
     return float(np.iinfo(img.dtype).max) / 255.0 if img.dtype.kind in "ui" else 1.0 / 255.0
+
+
+def covered_copy(src: Path, dst: Path, seed: int) -> None:
+    """A covered lens in ``src``'s format to ``dst``: grey level 3 with Gaussian noise of one grey level."""
+    def dark(img: np.ndarray) -> np.ndarray:
+        g = grey_level(img)
+        level = np.random.default_rng(seed).normal(3.0 * g, g, img.shape)
+        return np.clip(level, 0, 255 * g).round().astype(img.dtype)
+    rewrite_image(src, dst, dark, "cover")
 
 
 def noisy_copy(src: Path, dst: Path, sigma: float, seed: int) -> None:
@@ -186,11 +220,12 @@ def copy_image(src: Path, dst: Path, upside_down: bool) -> None:
 
 
 def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repeat: int = 1,
-               hold: tuple[int, int] | None = None, hold_noise: float = 1.5, occluder: Occluder | None = None) -> int:
+               hold: tuple[int, int] | None = None, hold_noise: float = 1.5, occluder: Occluder | None = None,
+               cover: tuple[int, int] | None = None, play: str | None = None) -> int:
     """The copy in ``out`` (written beside it, then renamed into place); returns its number of frames."""
     seq = TumSequence(src)  # the reader's own association of colour, depth and ground truth
     stamps, rgb, depth = seq.timestamps, seq.image_files, seq.depth_files
-    idx = frame_order(len(stamps), order, repeat)
+    idx = frame_order(len(stamps), order, repeat) if play is None else played(play, len(stamps))
     still = [False] * len(idx)
     if hold is not None:
         idx, still = held(idx, *hold)
@@ -199,7 +234,11 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
                                      and occluder.contrast >= 0):
         raise ValueError(f"--occluder {occluder.first}:{occluder.count} (width {occluder.width}, contrast "
                          f"{occluder.contrast}): the frames must lie in the copy's {len(idx)}, the width in (0, 1]")
-    new = stamps if len(idx) == len(stamps) and order == "forward" else retimed(stamps, len(idx))
+    if cover is not None and not (0 <= cover[0] and cover[1] >= 1 and cover[0] + cover[1] <= len(idx)):
+        raise ValueError(f"--cover {cover[0]}:{cover[1]}: the frames must lie in the copy's {len(idx)}")
+    covered = range(0) if cover is None else range(cover[0], cover[0] + cover[1])
+    unchanged = len(idx) == len(stamps) and order == "forward" and play is None
+    new = stamps if unchanged else retimed(stamps, len(idx))
     with staged(out) as tmp:
         for name in ("calib.txt", "LICENSE", "README.md"):
             if (src / name).is_file():
@@ -210,6 +249,8 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
                          + ([f"frame {hold[0]} held {hold[1]} more"] if hold else [])
                          + ([f"an occluder over frames {occluder.first}-{occluder.first + occluder.count - 1}"]
                             if occluder else [])
+                         + ([f"the lens covered over frames {covered[0]}-{covered[-1]}"] if cover else [])
+                         + ([f"frames {play}"] if play else [])
                          + (["upside down"] if upside_down else []))
         for kind, files in (("rgb", rgb), ("depth", depth)):
             if files is None:
@@ -218,7 +259,9 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
             rows, first = [], {}  # source index -> its first copy's path
             for i, j in enumerate(idx):
                 name = f"{kind}/{new[i]:.6f}{files[j].suffix}"
-                if kind == "rgb" and occluder is not None and occluder.covers(i):  # someone walks past the camera
+                if kind == "rgb" and i in covered:  # the lens covered: the camera sees nothing, and moves on
+                    covered_copy(files[j], tmp / name, seed=i)
+                elif kind == "rgb" and occluder is not None and occluder.covers(i):  # someone walks past the camera
                     copy_image(files[j], tmp / name, upside_down)
                     occluder.draw(tmp / name, tmp / name, i)  # left to right in the copy as it is seen
                 elif kind == "rgb" and still[i] and hold_noise > 0:  # held still: the same view, new sensor noise
@@ -299,6 +342,9 @@ def main() -> None:
     ap.add_argument("--occluder-width", type=float, default=0.3, metavar="W", help="its width over the image's")
     ap.add_argument("--occluder-contrast", type=float, default=45.0, metavar="C",
                     help="its texture's standard deviation in grey levels (0: flat)")
+    ap.add_argument("--cover", default=None, metavar="F:N", help="frames F..F+N-1 with the lens covered")
+    ap.add_argument("--play", default=None, metavar="SPEC",
+                    help="these source frames in this order, e.g. 0:100,20:70 (a camera carried back)")
     ap.add_argument("--upside-down", action="store_true", help="images, depth, calibration and poses turned 180 deg")
     ap.add_argument("--video", type=int, choices=(0, 90, 180, 270), default=None, metavar="ROTATION",
                     help="an H.264 video with this display rotation (0, 90, 180, 270) instead of a TUM copy")
@@ -316,13 +362,19 @@ def main() -> None:
         if a.video is not None or a.hold is not None:
             ap.error("--occluder writes a TUM copy, one probe at a time: not with --video or --hold")
         occluder = Occluder(first, count, a.occluder_width, a.occluder_contrast)
+    cover = None if a.cover is None else frame_pair(ap, a.cover, "--cover", "FIRST:COUNT")
+    if (a.cover is not None or a.play is not None) and a.video is not None:
+        ap.error("--cover and --play write a TUM copy, not a video")
+    if a.play is not None and (a.order != "forward" or a.repeat != 1):
+        ap.error("--play gives the order itself: not with --order or --repeat")
     if not (a.hold_noise >= 0):
         ap.error(f"--hold-noise must be >= 0, got {a.hold_noise}")
     try:
         if a.video is not None:
             n = write_video_copy(a.src, a.out, a.order, a.video, a.repeat)
         else:
-            n = write_copy(a.src, a.out, a.order, a.upside_down, a.repeat, hold, a.hold_noise, occluder)
+            n = write_copy(a.src, a.out, a.order, a.upside_down, a.repeat, hold, a.hold_noise, occluder, cover,
+                           a.play)
     except (CodeSLAMError, OSError, ValueError) as e:
         ap.error(str(e))
     print(f"{a.out}: {n} frames")

@@ -215,3 +215,42 @@ def test_an_occluder_outside_the_copy_is_a_one_line_error_and_writes_nothing(tmp
     done = _run(tmp_path / "src", tmp_path / "out", *args)
     assert done.returncode == 2 and "--occluder" in done.stderr.strip().splitlines()[-1]
     assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
+
+
+def test_a_covered_lens_is_dark_noise_over_its_frames_while_depth_and_poses_go_on(tmp_path):
+    _sequence(tmp_path / "src", 5)
+    done = _run(tmp_path / "src", tmp_path / "out", "--cover", "1:2")
+    assert done.returncode == 0, done.stderr
+    src, out = TumSequence(tmp_path / "src"), TumSequence(tmp_path / "out")
+    assert len(out) == 5 and np.allclose(out.timestamps, src.timestamps)  # the source's own time
+    for i in range(5):
+        a, b = src.frame(i), out.frame(i)
+        assert torch.equal(a.depth, b.depth) and torch.allclose(a.pose, b.pose, atol=1e-9)
+        if i in (1, 2):
+            grey = 255.0 * b.image
+            assert 2.0 < float(grey.mean()) < 4.0 and 0.5 < float(grey.std()) < 1.5
+        else:
+            assert torch.equal(a.image, b.image)
+    assert not torch.equal(out.frame(1).image, out.frame(2).image)  # each its own noise
+
+
+def test_played_frames_come_in_the_order_given_as_time_runs_on(tmp_path):
+    _sequence(tmp_path / "src", 6)
+    done = _run(tmp_path / "src", tmp_path / "out", "--play", "0:4,1:3,5")
+    assert done.returncode == 0, done.stderr
+    src, out = TumSequence(tmp_path / "src"), TumSequence(tmp_path / "out")
+    want = [0, 1, 2, 3, 1, 2, 5]  # carried back from frame 3 to frame 1, then on to frame 5
+    assert len(out) == len(want) and np.allclose(np.diff(out.timestamps), 0.1)
+    for j, i in enumerate(want):
+        a, b = src.frame(i), out.frame(j)
+        assert torch.equal(a.image, b.image) and torch.equal(a.depth, b.depth)
+        assert torch.allclose(a.pose, b.pose, atol=1e-9)
+
+
+@pytest.mark.parametrize("args", [("--cover", "4:2"), ("--cover", "1"), ("--play", "0:9"), ("--play", "3:1"),
+                                  ("--play", "a"), ("--play", "0:2", "--order", "reverse")])
+def test_a_cover_or_play_outside_the_sequence_is_a_one_line_error_and_writes_nothing(tmp_path, args):
+    _sequence(tmp_path / "src", 5)
+    done = _run(tmp_path / "src", tmp_path / "out", *args)
+    assert done.returncode == 2 and args[0] in done.stderr.strip().splitlines()[-1], done.stderr
+    assert "Traceback" not in done.stderr and not (tmp_path / "out").exists()
