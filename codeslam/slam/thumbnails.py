@@ -1,11 +1,11 @@
-"""Which stored keyframes a lost frame looks like: PTAM's small blurry images (Klein and Murray, "Parallel
-Tracking and Mapping for Small AR Workspaces", 2007, Sec. 6.3), beside the keyframes nearest the predicted pose.
+"""Which stored keyframes a lost frame looks like: PTAM's small blurry images (the relocaliser of Klein and Murray,
+"Improving the Agility of Keyframe-Based SLAM", ECCV 2008), beside the keyframes nearest the predicted pose.
 
-A lost frame is relocalised by ORB matching and PnP against stored keyframes (:mod:`codeslam.slam.frontend`),
-tried nearest to the motion model's prediction first. After a long loss (a lens covered while the camera moved,
-a camera carried back to a place it saw earlier) the prediction says nothing about where the camera is: a
-HoloLens walk carried back from frame 99 to frame 20 tried only keyframes of frames 80-99 and started a new map
-segment, 1.4 m off (docs/results/slam_table.md, fiftieth session). PTAM finds its candidates by appearance: each
+A lost frame is relocalised by ORB matching and PnP against stored keyframes (:mod:`codeslam.slam.frontend`), tried
+nearest to the motion model's prediction first. After a long loss (a lens covered while the camera moved, a camera
+carried back to a place it saw earlier) the prediction says nothing about where the camera is: a HoloLens walk
+carried back from frame 99 to frame 20 tried only keyframes near its prediction, past frame 99, and started a new
+map segment, 1.4 m off (docs/results/slam_table.md, fiftieth session). PTAM finds its candidates by appearance: each
 keyframe's image shrunk to 40x30 pixels, blurred and made zero-mean, compared with the lost frame's by the sum of
 squared differences. Here the thumbnail is also scaled to unit norm, so that the comparison is the normalised
 cross-correlation and a change of exposure does not move it.
