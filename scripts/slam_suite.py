@@ -9,8 +9,9 @@ wall) and eight more added the same way (seeds 81-88: two walks, one of them noi
 camera at 30 frames/s and one at 10 frames/s, a fast turn, a walk at 30 frames/s), four runs with frames dropped
 (four at the HoloLens walk's fastest turn; a tenth of the HoloLens and the TUM frames and a fifth of corridor 82's
 at random, ``--frames`` lists), the HoloLens walk there and back (its frames forwards, then backwards to the
-first: the camera's velocity flips at the turn) and TUM fr1/rpy upside down (its rolling shutter read from the
-image's bottom up; both copies made by ``scripts/sequence_copy.py`` under ``--seqs``), with the network's depth,
+first: the camera's velocity flips at the turn), TUM fr1/rpy upside down (its rolling shutter read from the
+image's bottom up), the HoloLens walk carried from frame 99 back to frame 20 and TUM fr1/rpy with its lens covered
+for a second (recovery; the copies made by ``scripts/sequence_copy.py`` under ``--seqs``), with the network's depth,
 four of them again with the dataset's own depth (``--depth-model standin``), which separates the tracker from the
 network, and the walk towards a blank wall with
 the network's code Jacobian but the dataset's depth at the zero code (``--depth-model true-prior``), which separates
@@ -149,6 +150,11 @@ RUNS = (
     ("holo_back", "hololens_dvmvs@there-and-back", ()),
     # the camera upside down (added the same session): the Kinect's rows read from the image's bottom up
     ("tum_flip", "tum_fr1_rpy@upside-down", ()),
+    # recovery (added 2026-12-06, fiftieth session): the walk carried from frame 99 back to frame 20 (relocalised
+    # by what it looks like, or a new segment), and TUM's lens covered for a second (30 frames lost, then placed
+    # between the frames around them in the trajectory)
+    ("holo_carried", "hololens_dvmvs@carried-back", ()),
+    ("tum_covered", "tum_fr1_rpy@covered", ()),
     ("holo_standin", "hololens_dvmvs", ("--depth-model", "standin")),
     ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
     ("walk_standin", "walk10", ("--depth-model", "standin")),
@@ -165,7 +171,8 @@ LONG_RUNS = (
 
 
 VARIANTS = {"reverse": ("--order", "reverse"), "there-and-back": ("--order", "there-and-back"),
-            "upside-down": ("--upside-down",)}
+            "upside-down": ("--upside-down",), "carried-back": ("--play", "0:100,20:70"),
+            "covered": ("--cover", "60:30")}
 """``NAME@VARIANT`` datasets: the copy's ``scripts/sequence_copy.py`` arguments."""
 
 
