@@ -127,12 +127,22 @@ def played(spec: str, n: int) -> list[int]:
         try:
             bounds = [int(x) for x in part.split(":")]
         except ValueError:
-            raise ValueError(f"--play {spec!r}: {part!r} is neither an index nor START:END") from None
-        first, end = (bounds[0], bounds[0] + 1) if len(bounds) == 1 else bounds if len(bounds) == 2 else (0, -1)
+            bounds = []
+        if len(bounds) not in (1, 2):
+            raise ValueError(f"--play {spec!r}: {part!r} is neither an index nor START:END")
+        first, end = bounds if len(bounds) == 2 else (bounds[0], bounds[0] + 1)
         if not 0 <= first < end <= n:
             raise ValueError(f"--play {spec!r}: {part!r} is not a non-empty part of the sequence's {n} frames")
         out += range(first, end)
     return out
+
+
+def frame_span(flag: str, first: int, count: int, n: int) -> range:
+    """The copy's frames ``first`` .. ``first + count - 1`` of ``--cover`` or ``--occluder`` (``flag``); ValueError
+    unless they are at least one and all lie in the copy's ``n``."""
+    if not (0 <= first and count >= 1 and first + count <= n):
+        raise ValueError(f"{flag} {first}:{count}: the frames must lie in the copy's {n}")
+    return range(first, first + count)
 
 
 def rewrite_image(src: Path, dst: Path, change: Callable[[np.ndarray], np.ndarray], what: str) -> None:
@@ -229,14 +239,12 @@ def write_copy(src: Path, out: Path, order: str, upside_down: bool = False, repe
     still = [False] * len(idx)
     if hold is not None:
         idx, still = held(idx, *hold)
-    if occluder is not None and not (0 <= occluder.first and occluder.count >= 1
-                                     and occluder.first + occluder.count <= len(idx) and 0 < occluder.width <= 1
-                                     and occluder.contrast >= 0):
-        raise ValueError(f"--occluder {occluder.first}:{occluder.count} (width {occluder.width}, contrast "
-                         f"{occluder.contrast}): the frames must lie in the copy's {len(idx)}, the width in (0, 1]")
-    if cover is not None and not (0 <= cover[0] and cover[1] >= 1 and cover[0] + cover[1] <= len(idx)):
-        raise ValueError(f"--cover {cover[0]}:{cover[1]}: the frames must lie in the copy's {len(idx)}")
-    covered = range(0) if cover is None else range(cover[0], cover[0] + cover[1])
+    if occluder is not None:
+        frame_span("--occluder", occluder.first, occluder.count, len(idx))
+        if not (0 < occluder.width <= 1 and occluder.contrast >= 0):
+            raise ValueError(f"--occluder: the width must lie in (0, 1] and the contrast be >= 0, got "
+                             f"{occluder.width} and {occluder.contrast}")
+    covered = range(0) if cover is None else frame_span("--cover", *cover, len(idx))
     unchanged = len(idx) == len(stamps) and order == "forward" and play is None
     new = stamps if unchanged else retimed(stamps, len(idx))
     with staged(out) as tmp:
