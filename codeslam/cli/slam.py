@@ -261,6 +261,9 @@ def _print_summary(s: dict, out: Path) -> None:
         ("speed", f"{s['fps']:.2f} frames/s ({s['fps_with_io']:.2f} with reading)"),
         ("depth model", str(s.get("depth_model", ""))),
     ]
+    if s.get("segments", 1) > 1:  # tracking was lost long enough to start again
+        merged = len(s.get("segment_merges", []))
+        rows.append(("map segments", f"{s['segments']} ({merged} merged into an older map)"))
     if "camera" in s:  # a video: the calibration file, or the field-of-view guess
         rows.append(("camera", str(s["camera"])))
     rs = s.get("rolling_shutter")

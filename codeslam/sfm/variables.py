@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import torch
 
 from codeslam.errors import CodeSLAMError
-from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
+from codeslam.geometry.lie import se3_adjoint, se3_exp, se3_inverse, se3_log
 
 POSE, CODE, AFFINE, RS = "pose", "code", "affine", "rs"
 POSE_DIM, AFFINE_DIM, RS_DIM = 6, 2, 3
@@ -157,6 +157,20 @@ class LinearPrior:
     def cost(self, state: SfMState) -> torch.Tensor:
         d = self.delta(state).to(self.H.dtype)
         return 0.5 * d @ self.H @ d + self.b @ d
+
+    def moved(self, G: torch.Tensor) -> LinearPrior:
+        """The same prior on a map moved rigidly by ``G`` (4, 4): every pose ``T <- G T``, the linearisation
+        point's too. A pose block's difference ``log(T T0^-1)`` becomes ``log(G T T0^-1 G^-1) = Ad_G log(T
+        T0^-1)``, exactly; so with ``A`` the block diagonal of ``Ad_G`` on the pose blocks and the identity on the
+        others, ``H <- A^-T H A^-1`` and ``b <- A^-T b``, and the cost at every state moved alike is the cost
+        before. Written by hand: SE(3)'s adjoint on a quadratic, nothing a library gives."""
+        G = G.to(torch.float64)
+        sizes = [6 if b.kind == POSE else int(x.numel()) for b, x in zip(self.blocks, self.x0)]
+        Ad_inv = se3_adjoint(se3_inverse(G)).to(self.H.dtype)
+        A_inv = torch.block_diag(*[Ad_inv if b.kind == POSE else torch.eye(n, dtype=self.H.dtype)
+                                   for b, n in zip(self.blocks, sizes)]).to(self.H.device)
+        x0 = [(G.to(dtype=x.dtype, device=x.device) @ x) if b.kind == POSE else x for b, x in zip(self.blocks, self.x0)]
+        return LinearPrior(list(self.blocks), A_inv.T @ self.H @ A_inv, A_inv.T @ self.b, x0)
 
     def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
         """Add the prior's Hessian and gradient (``b + H d``, with ``d(d)/d(increment) ~ I``) in place."""

@@ -275,6 +275,14 @@ class RecoveryConfig:
     0: none."""
     lost_frames: int = 3
     """Consecutive lost frames after which the next frame starts a new map segment at its predicted pose."""
+    merge_segments: bool = True
+    """While a map segment other than the first is mapped, match each new keyframe's frame against the older
+    segments' keyframes it looks like, and move the segment into the older map when two successive matches agree
+    (:mod:`codeslam.slam.segments`)."""
+    merge_agreement: float = 0.1
+    """Two matches agree when they put the camera this fraction of the scene depth apart at most..."""
+    merge_agreement_deg: float = 3.0
+    """... and this many degrees."""
     promote_previous: bool = True
     """When a frame fails against its keyframe, first make the previous frame (tracked, not a keyframe) a keyframe
     and track the frame against it: a reference one frame old instead of one that has left the view."""
@@ -283,6 +291,8 @@ class RecoveryConfig:
         if self.min_inliers < 6 or self.max_candidates < 1 or self.lost_frames < 1 or self.appearance_candidates < 0:
             raise ConfigError("recovery.min_inliers must be >= 6, max_candidates and lost_frames >= 1, "
                               "appearance_candidates >= 0")
+        if not (self.merge_agreement > 0 and self.merge_agreement_deg > 0):
+            raise ConfigError("recovery.merge_agreement and merge_agreement_deg must be > 0")
 
 
 @dataclass(frozen=True)

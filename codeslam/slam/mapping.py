@@ -309,6 +309,11 @@ class Mapper:
         self.window.reset()
         self.window.add(kf)
 
+    def move(self, G: torch.Tensor) -> None:
+        """Move the window's map rigidly (``T_wc <- G T_wc``): a map segment merged into an older map. The caller
+        waits for the mapping thread first (:meth:`wait`) and applies what it finished."""
+        self.window.move(G)
+
     def start(self, kf: MapKeyframe) -> None:
         """The map's first keyframe."""
         self.window.add(kf)

@@ -39,12 +39,13 @@ from codeslam.geometry.camera import PinholeCamera
 from codeslam.io import atomic_path, atomic_write, write_json
 from codeslam.slam.config import SLAMConfig
 from codeslam.slam.keyframes import MAPPING_BUSY
+from codeslam.slam.segments import SegmentMerge
 from codeslam.slam.system import STATUSES, CodeSLAM, FrameResult
 from codeslam.slam.window import MapKeyframe
 from codeslam.viz import Visualizer
 
 #: The system's stages, in the order :attr:`FrameResult.timings_ms` reports them, plus the runner's own.
-STAGES = ("read", "resample", "features", "track", "relocalise", "readout", "decode", "marginalise", "window")
+STAGES = ("read", "resample", "features", "track", "relocalise", "merge", "readout", "decode", "marginalise", "window")
 
 
 @dataclass
@@ -64,6 +65,7 @@ class SLAMRun:
         trajectory_smoothing: the time scale (s) of the spline that smoothed ``trajectory``'s positions (0: none).
         keyframe_tracking: per keyframe, the keyframe it was tracked against and the tracked pose in it
             (:meth:`~codeslam.slam.system.CodeSLAM.keyframe_tracking`).
+        merges: the map segments moved into an older map (:class:`~codeslam.slam.segments.SegmentMerge`).
     """
 
     results: list[FrameResult]
@@ -77,6 +79,7 @@ class SLAMRun:
     readout: dict | None = None
     trajectory_smoothing: float = 0.0
     keyframe_tracking: list[tuple[int, torch.Tensor | None]] = field(default_factory=list)
+    merges: list[SegmentMerge] = field(default_factory=list)
 
     @property
     def fps(self) -> float:
@@ -135,6 +138,7 @@ def run_slam(
         keyframes=list(system.keyframes), camera=camera, timings_ms=totals, process_s=process_s,
         wall_s=time.perf_counter() - t_start, readout=system.readout_summary(),
         trajectory_smoothing=float(system.config.trajectory_smoothing), keyframe_tracking=system.keyframe_tracking(),
+        merges=list(system.merges),
     )
 
 
@@ -217,6 +221,8 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
         "status_counts": {s: sum(r.status == s for r in res) for s in STATUSES},
         "failures_by_reason": failures_by_reason(res),
         "segments": 1 + max(r.segment for r in res),
+        "segment_merges": [{"segment": m.segment, "into": m.into, "frame": m.frame_index, "keyframe": m.keyframe_id,
+                            "inliers": m.inliers} for m in run.merges],
         "window_rollbacks": sum(bool(r.window is not None and r.window.rejected) or bool(r.rolled_back)
                                 for r in res),
         "mapping_statistics": mapping_statistics(res),

@@ -23,7 +23,8 @@ map within seconds):
 * **Recovery**: a frame that fails is relocalised against the window's and older keyframes (ORB + PnP; those
   nearest its predicted pose and those it looks like, by PTAM's small blurry images); after
   ``recovery.lost_frames`` lost frames the next one starts a new map segment at its predicted pose. Every
-  frame's pose is marked ``tracked``, ``relocalised`` or ``predicted``.
+  frame's pose is marked ``tracked``, ``relocalised`` or ``predicted``. A new segment is moved into an older map
+  when its keyframes are seen to match that map's (:mod:`codeslam.slam.segments`).
 
 Every frame's pose is kept relative to its reference keyframe (``T_wc = T_wk T_kf``), so the trajectory follows
 the keyframes when the window optimisation moves them; the final trajectory spreads what the window changed
@@ -61,6 +62,7 @@ from codeslam.slam.keyframes import MAPPING_BUSY, KeyframeDecision, decide_keyfr
 from codeslam.slam.mapping import Mapper, MappingJob, MappingResult, torch_threads
 from codeslam.slam.poses import path_fractions, project_to_se3, scale_motion, spread_correction
 from codeslam.slam.readout import ReadoutChoice
+from codeslam.slam.segments import SegmentMaps, SegmentMerge, motions_agree, segment_motion
 from codeslam.slam.smoothing import smooth_positions
 from codeslam.slam.thumbnails import most_alike, thumbnail
 from codeslam.slam.tracker import PhotometricTracker, TrackResult
@@ -242,6 +244,9 @@ class CodeSLAM:
         self.keyframes: list[MapKeyframe] = []  # every keyframe ever made, by id
         self.ref: MapKeyframe | None = None  # the keyframe frames are tracked against
         self.segment = 0
+        self.maps = SegmentMaps()  # which map each segment belongs to, once merged (recovery.merge_segments)
+        self.merges: list[SegmentMerge] = []
+        self._merge_seen: tuple[int, torch.Tensor, int] | None = None  # the last match: (map, G, keyframe)
         self._records: list[_FrameRecord] = []
         self._results: list[FrameResult] = []  # what process() returned, completed when mapping finishes
         self._keyframe_record: dict[int, int] = {}  # keyframe id -> position of its frame's record
@@ -413,6 +418,12 @@ class CodeSLAM:
                     decision = dataclasses.replace(decision, add=False, reason="keyframe arrived")
             else:
                 decision = dataclasses.replace(decision, add=False, reason=MAPPING_BUSY)
+        older = self._older_keyframes() if decision.add else []
+        if older:  # this segment may join an older map here
+            views = self._with_features(views)
+            merged = self._merge(views, ref, track, older)
+            if merged:  # the keyframe's reason is what the frame log says of a keyframe
+                decision = dataclasses.replace(decision, reason=f"{decision.reason}; {merged}")
         kw = dict(track=track, decision=decision, status=status, source=source, rolled_back=rolled_back)
         T_wc = ref.T_wc @ track.T_kf
         choosing = self.readout_choice is not None and not self.readout_choice.final
@@ -549,6 +560,56 @@ class CodeSLAM:
             return None
         return kf, track, sparse2 if sparse2 is not None and sparse2.ok else sparse, source, False
 
+    def _older_keyframes(self) -> list[MapKeyframe]:
+        """The keyframes of the maps older than the current segment's, which it may merge into
+        (``recovery.merge_segments``; an older map is never moved into a newer one)."""
+        if not (self.config.recovery.merge_segments and self.config.features.enabled and self.segment > 0):
+            return []
+        here = self.maps.root(self.segment)
+        return [k for k in self.keyframes if k.sparse is not None and self.maps.root(k.segment) < here]
+
+    def _merge(self, views: _Views, ref: MapKeyframe, track: TrackResult, older: list[MapKeyframe]) -> str:
+        """A frame about to become a keyframe of a segment that may join an older map (:meth:`_older_keyframes`):
+        match it against the older keyframes it looks like (:mod:`codeslam.slam.segments`). When this match and
+        the last one, against another keyframe of the same map, agree, move the segment's map rigidly into the
+        older one: its keyframes, the window's linear prior with them (:meth:`SlidingWindow.move`), and through
+        them every frame tracked in it. The window goes on as it was: restarting it there instead (a new
+        keyframe, as a relocalisation outside the window does) lost the HoloLens walk coming back, 56 deg off at
+        its end, as a map started afresh at that frame does. Returns the frame's reason, '' without a merge."""
+        rcfg = self.config.recovery
+        if views.features is None:
+            return ""
+        with self.clock("merge"):
+            alike = most_alike(thumbnail(views.frame.image), torch.stack([self._thumbnail(k) for k in older]),
+                               max(rcfg.appearance_candidates, 1))
+            found = self.sparse.relocalise([(older[i].id, older[i].sparse) for i in alike], views.features,
+                                           rcfg.min_inliers)
+        if found is None:
+            return ""
+        kid, sparse = found
+        there = self.keyframes[kid]
+        into = self.maps.root(there.segment)
+        G = segment_motion(ref.T_wc @ track.T_kf, there.T_wc @ sparse.T_kf)
+        seen, self._merge_seen = self._merge_seen, (into, G, kid)
+        # Two matches of two frames against two keyframes: a single match can be a repeated texture (the HoloLens
+        # walk's frame 180 matched frame 20's keyframe with 36 of 51 matches inliers, 3 m from it), and so can a
+        # second one of the same view (the walk coming back shows frame 180 again).
+        if seen is None or seen[0] != into or seen[2] == kid or not motions_agree(
+                seen[1], G, ref.T_wc @ track.T_kf, there.median_depth(), rcfg.merge_agreement,
+                rcfg.merge_agreement_deg):
+            return ""
+        self._apply(self.mapper.wait())  # the window's last solve lands before its keyframes move
+        here = self.maps.root(self.segment)
+        G = segment_motion(ref.T_wc @ track.T_kf, there.T_wc @ sparse.T_kf)  # the solve may have moved ref
+        for k in self.keyframes:
+            if self.maps.root(k.segment) == here and not k.active:
+                k.T_wc = G @ k.T_wc
+        self.mapper.move(G)
+        self._undo, self._merge_seen = None, None  # the last solve's snapshot lies where the map was
+        self.maps.join(here, into)
+        self.merges.append(SegmentMerge(self.segment, into, views.frame.index, kid, sparse.num_inliers, G))
+        return f"segment {self.segment} merged into segment {into} (keyframe {kid}, {sparse.num_inliers} inliers)"
+
     def _thumbnail(self, kf: MapKeyframe) -> torch.Tensor:
         """Keyframe ``kf``'s thumbnail (:func:`~codeslam.slam.thumbnails.thumbnail`), made once."""
         found = self._thumbnails.get(kf.id)
@@ -563,6 +624,7 @@ class CodeSLAM:
         self._matches = None
         if self._lost > self.config.recovery.lost_frames and not self._anchor_problem(views):
             self.segment += 1
+            self._merge_seen = None
             return self._restart(views, ref.T_wc @ T_kf_guess, track, PREDICTED,
                                  f"new segment after {self._lost - 1} lost frames ({reason})", rolled_back)
         return self._record(views.frame, ref, T_kf_guess, False, track=track, reason=reason, status=PREDICTED,
@@ -1008,11 +1070,11 @@ class CodeSLAM:
         return Trajectory(t, poses)
 
     def _smooth(self, poses: torch.Tensor, t: np.ndarray) -> None:
-        """Smooth the positions of ``poses`` (one per record, at times ``t``) in place, each map segment on its own
-        (:func:`~codeslam.slam.smoothing.smooth_positions`): the tracked and relocalised frames are its
-        measurements, the predicted ones are placed by the spline alone, and the segment's first frame stays where
-        it is."""
-        segment = np.array([self.keyframes[r.keyframe_id].segment for r in self._records])
+        """Smooth the positions of ``poses`` (one per record, at times ``t``) in place, each map on its own (a map
+        segment with those merged into it, :mod:`codeslam.slam.segments`; :func:`~codeslam.slam.smoothing.
+        smooth_positions`): the tracked and relocalised frames are its measurements, the predicted ones are placed
+        by the spline alone, and the map's first frame stays where it is."""
+        segment = np.array([self.maps.root(self.keyframes[r.keyframe_id].segment) for r in self._records])
         ok = np.array([r.ok for r in self._records])
         for s in np.unique(segment):
             at = np.nonzero(segment == s)[0]
@@ -1056,18 +1118,18 @@ class CodeSLAM:
         return poses
 
     def _bridge_lost(self, poses: torch.Tensor) -> None:
-        """Each run of lost frames (pose only predicted) between two frames with a pose in the same map segment
-        placed in ``poses`` (one per record; in place) on the geodesic from the frame before the run to the frame
-        after it, by time (:func:`~codeslam.slam.poses.spread_correction`, :meth:`_time_fractions`): the camera's
-        constant velocity between two known poses instead of the live prediction, which carries the last
-        velocity on over the whole run. Runs at a segment's end stay as predicted: the next segment's pose is
-        itself a prediction. Measured with the lens covered (grey level 3 plus noise) for 30 frames of TUM
-        fr1/rpy, tracked again at frame 90 against the same keyframe: the covered frames' rotations 26.1 -> 12.6
-        deg RMSE off the truth (59 -> 20 deg at worst), the run's 10.8 -> 5.5 deg; on generator presets 7.2 ->
-        3.9 (walk, 8 frames), 9.4 -> 2.1 (hand-held, 15), 4.4 -> 0.9 deg (fast turn, 15); docs/results/
-        slam_table.md, fiftieth session."""
+        """Each run of lost frames (pose only predicted) between two frames with a pose in the same map (one map
+        segment, or two merged, :mod:`codeslam.slam.segments`) placed in ``poses`` (one per record; in place) on
+        the geodesic from the frame before the run to the frame after it, by time (:func:`~codeslam.slam.poses.
+        spread_correction`, :meth:`_time_fractions`): the camera's constant velocity between two known poses
+        instead of the live prediction, which carries the last velocity on over the whole run. Runs at the end of
+        a segment that was never merged stay as predicted: the next segment's pose is itself a prediction.
+        Measured with the lens covered (grey level 3 plus noise) for 30 frames of TUM fr1/rpy, tracked again at
+        frame 90 against the same keyframe: the covered frames' rotations 26.1 -> 12.6 deg RMSE off the truth (59
+        -> 20 deg at worst), the run's 10.8 -> 5.5 deg; on generator presets 7.2 -> 3.9 (walk, 8 frames), 9.4 ->
+        2.1 (hand-held, 15), 4.4 -> 0.9 deg (fast turn, 15); docs/results/slam_table.md, fiftieth session."""
         ok = [r.ok for r in self._records]
-        segment = [self.keyframes[r.keyframe_id].segment for r in self._records]
+        segment = [self.maps.root(self.keyframes[r.keyframe_id].segment) for r in self._records]
         i, n = 0, len(ok)
         while i < n:
             if ok[i]:

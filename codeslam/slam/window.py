@@ -483,6 +483,16 @@ class SlidingWindow:
                     return f"keyframe {k.id}: {100 * share:.1f}% of its depth ran off to infinity or zero"
         return ""
 
+    def move(self, G: torch.Tensor) -> None:
+        """Move the window rigidly by ``G`` (4, 4; ``T_wc <- G T_wc``): its keyframes and its linear prior
+        (:meth:`~codeslam.sfm.variables.LinearPrior.moved`). The pairs' photometric and reprojection terms and the
+        velocity and scale priors see relative poses and depths only, and do not change."""
+        G = G.to(torch.float64)
+        for k in self.keyframes:
+            k.T_wc = G @ k.T_wc
+        if self.prior is not None:
+            self.prior = self.prior.moved(G)
+
     def reset(self) -> list[MapKeyframe]:
         """Freeze every keyframe and empty the window (a new map segment, or a relocalised restart); returns
         the keyframes that left."""
