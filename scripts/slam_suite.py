@@ -155,6 +155,9 @@ RUNS = (
     # between the frames around them in the trajectory)
     ("holo_carried", "hololens_dvmvs@carried-back", ()),
     ("tum_covered", "tum_fr1_rpy@covered", ()),
+    # a map segment merged (added 2026-12-06, fifty-first session): the walk there and back with the lens covered
+    # for frames 60-74 (a new segment 1.8 m and 27 deg off), merged into the first map on the way back
+    ("holo_back_covered", "hololens_dvmvs@back-covered", ()),
     ("holo_standin", "hololens_dvmvs", ("--depth-model", "standin")),
     ("tum_standin", "tum_fr1_rpy", ("--depth-model", "standin")),
     ("walk_standin", "walk10", ("--depth-model", "standin")),
@@ -172,7 +175,7 @@ LONG_RUNS = (
 
 VARIANTS = {"reverse": ("--order", "reverse"), "there-and-back": ("--order", "there-and-back"),
             "upside-down": ("--upside-down",), "carried-back": ("--play", "0:100,20:70"),
-            "covered": ("--cover", "60:30")}
+            "covered": ("--cover", "60:30"), "back-covered": ("--order", "there-and-back", "--cover", "60:15")}
 """``NAME@VARIANT`` datasets: the copy's ``scripts/sequence_copy.py`` arguments."""
 
 
