@@ -423,7 +423,9 @@ class CodeSLAM:
             views = self._with_features(views)
             merged = self._merge(views, ref, track, older)
             if merged:  # the keyframe's reason is what the frame log says of a keyframe
-                decision = dataclasses.replace(decision, reason=f"{decision.reason}; {merged}")
+                # (parallel mode: the merge's wait may have taken in a newer keyframe; track against it next frame)
+                decision = dataclasses.replace(decision, reason=f"{decision.reason}; {merged}",
+                                               add=self.ref is ref)
         kw = dict(track=track, decision=decision, status=status, source=source, rolled_back=rolled_back)
         T_wc = ref.T_wc @ track.T_kf
         choosing = self.readout_choice is not None and not self.readout_choice.final
