@@ -64,14 +64,13 @@ def test_a_marginal_prior_moved_with_its_map_costs_what_it_cost_before():
 
 
 def test_a_new_segment_is_merged_into_the_first_when_the_camera_comes_back_where_that_one_mapped():
-    # The walk preset's frames 0-19, the lens covered for four frames while the camera is carried to frame 43's
-    # place, then frames 43 down to 0: the camera walks back through what the first segment mapped. Relocalisation
+    # The walk preset's frames 0-15, the lens covered for four frames while the camera is carried to frame 35's
+    # place, then frames 35 down to 0: the camera walks back through what the first segment mapped. Relocalisation
     # is off, so the frame after the cover starts a new segment at the motion model's prediction, metres from the
-    # truth; coming back, it is matched to the first segment's keyframes and moved into that map. Without the
-    # merge its poses stay where the prediction put them (2.1 m off at frame 0's place).
-    frames = preset_frames(5, 44, "walk", 10.0)
-    order = list(range(20)) + [None] * 4 + list(range(43, -1, -1))
-    seq = MemorySequence([dataclasses.replace(frames[19 if j is None else j], timestamp=1000.0 + i / 10.0, index=i,
+    # truth; coming back, it is matched to the first segment's keyframes and moved into that map.
+    frames = preset_frames(5, 36, "walk", 10.0)
+    order = list(range(16)) + [None] * 4 + list(range(35, -1, -1))
+    seq = MemorySequence([dataclasses.replace(frames[15 if j is None else j], timestamp=1000.0 + i / 10.0, index=i,
                                               image=torch.zeros_like(frames[0].image) if j is None
                                               else frames[j].image) for i, j in enumerate(order)])
     config = SLAMConfig(trajectory_smoothing=0.0, recovery=RecoveryConfig(relocalise=False))
@@ -81,12 +80,12 @@ def test_a_new_segment_is_merged_into_the_first_when_the_camera_comes_back_where
     assert max(r.segment for r in results) == 1, [r.segment for r in results]
     assert [(m.segment, m.into) for m in system.merges] == [(1, 0)]
     merged_at = next(i for i, r in enumerate(results) if "merged into segment 0" in r.reason)
-    assert order[merged_at] is not None and order[merged_at] < 20  # where the first segment mapped
+    assert order[merged_at] is not None and order[merged_at] < 16  # where the first segment mapped
     poses = system.trajectory().poses
     start = next(i for i, r in enumerate(results) if r.segment == 1)
-    # From the segment's first tracked frame on: here 0.12-0.22 m and 1.0-3.2 deg off; without the merge 1.9-2.0 m
-    # and 4.2-5.6 deg (the first segment's own frames: up to 0.23 m and 1.6 deg).
+    # From the segment's first tracked frame on: here 0.15-0.22 m and 0.95-1.7 deg off; without the merge 1.5-1.7 m
+    # and 24.5-25 deg.
     for i in range(start + 1, len(order)):
         T_true = se3_inverse(frames[0].pose) @ frames[order[i]].pose  # the world is frame 0's camera
         assert float((poses[i][:3, 3] - T_true[:3, 3]).norm()) < 0.4, (i, poses[i][:3, 3], T_true[:3, 3])
-        assert math.degrees(so3_angle_host(T_true[:3, :3].T @ poses[i][:3, :3])) < (2.0 if i >= merged_at else 4.0)
+        assert math.degrees(so3_angle_host(T_true[:3, :3].T @ poses[i][:3, :3])) < 3.0, i
