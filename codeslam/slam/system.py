@@ -591,14 +591,14 @@ class CodeSLAM:
         kid, sparse = found
         there = self.keyframes[kid]
         into = self.maps.root(there.segment)
-        G = segment_motion(ref.T_wc @ track.T_kf, there.T_wc @ sparse.T_kf)
+        T_here = ref.T_wc @ track.T_kf  # the frame in its own segment
+        G = segment_motion(T_here, there.T_wc @ sparse.T_kf)
         seen, self._merge_seen = self._merge_seen, (into, G, kid)
         # Two matches of two frames against two keyframes: a single match can be a repeated texture (the HoloLens
         # walk's frame 180 matched frame 20's keyframe with 36 of 51 matches inliers, 3 m from it), and so can a
         # second one of the same view (the walk coming back shows frame 180 again).
         if seen is None or seen[0] != into or seen[2] == kid or not motions_agree(
-                seen[1], G, ref.T_wc @ track.T_kf, there.median_depth(), rcfg.merge_agreement,
-                rcfg.merge_agreement_deg):
+                seen[1], G, T_here, there.median_depth(), rcfg.merge_agreement, rcfg.merge_agreement_deg):
             return ""
         self._apply(self.mapper.wait())  # the window's last solve lands before its keyframes move
         here = self.maps.root(self.segment)
