@@ -13,12 +13,12 @@ network's prior.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 
-from codeslam.geometry.lie import se3_inverse, so3_angle_host
+from codeslam.geometry.lie import se3_inverse
+from codeslam.slam.keyframes import motion_since_keyframe
 
 
 @dataclass(frozen=True)
@@ -71,8 +71,8 @@ def motions_agree(G1: torch.Tensor, G2: torch.Tensor, T_wc: torch.Tensor, depth:
                   max_deg: float) -> bool:
     """Whether two segment motions put the camera at ``T_wc`` (in the segment) at the same place in the older map:
     positions apart by at most ``max_ratio`` times the scene ``depth`` (a map's translations are in its depth
-    units) and rotations by at most ``max_deg``."""
+    units) and rotations by at most ``max_deg`` (:func:`~codeslam.slam.keyframes.motion_since_keyframe` of the one
+    pose in the other, as the tracker's deviation from its prediction is read)."""
     A, B = G1.to(torch.float64) @ T_wc.to(torch.float64), G2.to(torch.float64) @ T_wc.to(torch.float64)
-    apart = float((A[:3, 3] - B[:3, 3]).norm())
-    turn = math.degrees(so3_angle_host(A[:3, :3].T @ B[:3, :3]))
-    return apart <= max_ratio * depth and turn <= max_deg
+    ratio, turn = motion_since_keyframe(se3_inverse(A) @ B, depth)
+    return ratio <= max_ratio and turn <= max_deg

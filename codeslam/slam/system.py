@@ -1076,7 +1076,7 @@ class CodeSLAM:
         segment with those merged into it, :mod:`codeslam.slam.segments`; :func:`~codeslam.slam.smoothing.
         smooth_positions`): the tracked and relocalised frames are its measurements, the predicted ones are placed
         by the spline alone, and the map's first frame stays where it is."""
-        segment = np.array([self.maps.root(self.keyframes[r.keyframe_id].segment) for r in self._records])
+        segment = np.array(self._record_maps())
         ok = np.array([r.ok for r in self._records])
         for s in np.unique(segment):
             at = np.nonzero(segment == s)[0]
@@ -1131,7 +1131,7 @@ class CodeSLAM:
         -> 20 deg at worst), the run's 10.8 -> 5.5 deg; on generator presets 7.2 -> 3.9 (walk, 8 frames), 9.4 ->
         2.1 (hand-held, 15), 4.4 -> 0.9 deg (fast turn, 15); docs/results/slam_table.md, fiftieth session."""
         ok = [r.ok for r in self._records]
-        segment = [self.maps.root(self.keyframes[r.keyframe_id].segment) for r in self._records]
+        segment = self._record_maps()
         i, n = 0, len(ok)
         while i < n:
             if ok[i]:
@@ -1143,6 +1143,10 @@ class CodeSLAM:
                 poses[i:j] = spread_correction(poses[a].expand(j - i, 4, 4), poses[b].expand(j - i, 4, 4),
                                                self._time_fractions(list(range(i, j)), a, b))
             i = j
+
+    def _record_maps(self) -> list[int]:
+        """Each record's map: the root segment (:class:`~codeslam.slam.segments.SegmentMaps`) of its keyframe's."""
+        return [self.maps.root(self.keyframes[r.keyframe_id].segment) for r in self._records]
 
     def _time_fractions(self, inner: list[int], a: int, b: int) -> torch.Tensor:
         """The records ``inner`` placed between records ``a`` and ``b`` by time (by place without usable
