@@ -5,9 +5,10 @@ memory, by default the walk at 10 frames/s) and each mapping mode it runs the wh
 (so peak memory is that run's) and prints:
 
 * frames per second of the whole loop, reading included (and of the system alone);
-* per-frame stages (read, resample, features, track) and per-keyframe stages (decode, marginalise, window): median
-  and 90th percentile in ms ("read" is the time the loop waited for a frame: frames are read one ahead on a
-  thread of their own, :func:`codeslam.slam.pipeline.read_ahead`);
+* per-frame stages (read, resample, features, track, relocalise, wait) and per-keyframe stages (decode,
+  marginalise, window): median and 90th percentile in ms ("read" is the time the loop waited for a frame: frames
+  are read one ahead on a thread of their own, :func:`codeslam.slam.pipeline.read_ahead`; "wait" the time the
+  tracker waited for the mapping thread, parallel mode);
 * each frame's time in ``CodeSLAM.process`` on the tracking thread, wall and that thread's CPU time (median and
   90th percentile ms; in parallel mode the difference is waiting: for an urgent keyframe, the GIL or a core), and
   the mapping steps' wall and CPU time in all (s; their stages decode, marginalise and window, as the mapping
@@ -43,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
-PER_FRAME = ("read", "resample", "features", "track", "relocalise")
+PER_FRAME = ("read", "resample", "features", "track", "relocalise", "wait")
 PER_KEYFRAME = ("decode", "marginalise", "window")
 
 

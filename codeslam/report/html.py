@@ -143,7 +143,8 @@ def failure_counts(run: RunFiles) -> tuple[dict[str, int], str]:
 
 
 #: The order a frame goes through the stages (result.json stores them sorted by name); unknown ones follow.
-STAGE_ORDER = ("read", "resample", "features", "track", "relocalise", "merge", "decode", "marginalise", "window")
+STAGE_ORDER = ("read", "resample", "features", "track", "relocalise", "merge", "wait", "decode", "marginalise",
+               "window")
 
 
 def _in_stage_order(times: dict) -> dict:

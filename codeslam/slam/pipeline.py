@@ -45,7 +45,8 @@ from codeslam.slam.window import MapKeyframe
 from codeslam.viz import Visualizer
 
 #: The system's stages, in the order :attr:`FrameResult.timings_ms` reports them, plus the runner's own.
-STAGES = ("read", "resample", "features", "track", "relocalise", "merge", "readout", "decode", "marginalise", "window")
+STAGES = ("read", "resample", "features", "track", "relocalise", "merge", "readout", "wait", "decode", "marginalise",
+          "window")
 
 
 @dataclass

@@ -361,7 +361,7 @@ class CodeSLAM:
             # 78-80 and 148-150 so, each right after a keyframe was asked for): take it, waiting for its decoding
             # (not for the window solve), as PTAM's tracker waits only when it must, and track against it.
             if self.mapper.decoding:
-                self._apply(self.mapper.wait(interrupt=True))  # returns once the keyframe is handed over
+                self._wait_for_mapping()  # returns once the keyframe is handed over
             self._apply(self.mapper.collect())  # one handed over meanwhile
             if self.ref is not ref:
                 ref = self.ref
@@ -413,7 +413,7 @@ class CodeSLAM:
             # The reference is leaving the view, or keyframes are taken when wanted (KeyframeConfig.take_when_busy):
             # wait for the mapping thread rather than track on against a keyframe the map has outgrown.
             if decision.urgent or self.config.keyframes.take_when_busy:
-                self._apply(self.mapper.wait(interrupt=True))
+                self._wait_for_mapping()
                 if self.ref.id != ref.id:  # a newer keyframe arrived meanwhile: track against it next frame
                     decision = dataclasses.replace(decision, add=False, reason="keyframe arrived")
             else:
@@ -502,6 +502,15 @@ class CodeSLAM:
                                             photometric_reason=track.photometric_reason or "left the matches' pose")
                 source = "features"
         return track, sparse, source
+
+    def _wait_for_mapping(self) -> None:
+        """Parallel mode: wait until the keyframe being decoded is handed over, or the running window solve stops
+        after its current iteration (:meth:`Mapper.wait` with ``interrupt``), and take in what the mapping thread
+        finished. Timed as the stage "wait": the time the tracker loses to the mapping (on the parallel HoloLens
+        walk 22 of the tracking thread's 38 s, docs/results/slam_table.md, fifty-second session)."""
+        with self.clock("wait"):
+            done = self.mapper.wait(interrupt=True)
+        self._apply(done)
 
     def _promote_last(self) -> bool:
         """When a frame cannot be tracked against its keyframe, make the frame before it a keyframe (it was
