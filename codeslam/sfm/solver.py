@@ -217,14 +217,16 @@ def levenberg_marquardt(
 def coarse_to_fine(
     problem_at: Callable[[int], Any], state, layout: VariableLayout, cfg: SfMConfig,
     levels: Iterable[tuple[int, int]], clock: Clock = NO_CLOCK, interrupted: Callable[[], bool] | None = None,
-    interruptible_levels: Container[int] | None = None,
+    interruptible_levels: Container[int] | None = None, after_stop: int | None = None,
 ) -> tuple[Any, list[tuple[int, LMReport]], Any]:
     """Levenberg-Marquardt at each pyramid level in ``levels`` ((level, iterations), coarse to fine), each level
     starting from the one before (paper Sec. 4.1 and 4.2: the coarse levels widen the basin, the fine ones
     sharpen the estimate). ``problem_at(level)`` builds that level's problem (any problem
     :func:`levenberg_marquardt` drives); the N-frame SfM, the window and the tracker all run this one loop.
     Stops early when a level was interrupted (see :func:`levenberg_marquardt`); ``interrupted`` is asked only at
-    the pyramid levels in ``interruptible_levels`` (None: at every level), the others run whole.
+    the pyramid levels in ``interruptible_levels`` (None: at every level). The others run whole, or, with
+    ``after_stop``, at most that many more iterations each once ``interrupted()`` has turned true, and the loop
+    goes on to the next level (so that a stopped solve still passes every level on its way to the cut one).
 
     Returns the final state, one (level, :class:`LMReport`) per visited level, and the last level's problem (None
     when ``levels`` is empty)."""
@@ -232,12 +234,29 @@ def coarse_to_fine(
     problem = None
     for lvl, iters in levels:
         problem = problem_at(lvl)
-        cut = interrupted if interruptible_levels is None or lvl in interruptible_levels else None
+        cuttable = interruptible_levels is None or lvl in interruptible_levels
+        if cuttable or interrupted is None:
+            cut = interrupted
+        else:
+            cut = None if after_stop is None else _after(interrupted, after_stop)
         state, rep = levenberg_marquardt(problem, state, layout, cfg, iters, clock, cut)
         reports.append((lvl, rep))
-        if rep.reason == "interrupted":
+        if rep.reason == "interrupted" and cuttable:
             break
     return state, reports, problem
+
+
+def _after(interrupted: Callable[[], bool], n: int) -> Callable[[], bool]:
+    """``interrupted`` held back by ``n`` asks: true from the (n + 1)-th time it is asked once it has been true."""
+    seen = 0
+
+    def cut() -> bool:
+        nonlocal seen
+        if seen or interrupted():
+            seen += 1
+        return seen > n
+
+    return cut
 
 
 @dataclass

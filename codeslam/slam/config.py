@@ -514,6 +514,18 @@ class WindowConfig:
     0.066 / 0.062 -> 0.069 / 0.069 / 0.058, TUM fr1/rpy 0.0149-0.0165 m and 1.35-1.48° (4 runs) -> 0.0126-0.0171 m
     and 1.37-1.68° (6 runs, 3 at or above 1.5°; 0.8-1.0x the frames/s there; eleven more in the thirty-eighth
     session: 0.0112-0.0189 m, 1.26-1.61°, median 1.38°, one above 1.5°). False: any level may be cut (before)."""
+    coarse_iterations_after_stop: int = -1
+    """With ``interrupt_finest_only``: once the tracker's stop has come, each coarser level runs at most this many more
+    iterations and the solve goes on to the finest level, where it ends; -1 (the default): they run whole. The tracker
+    waits for what runs after its stop: on the parallel HoloLens walk 10.8 of its 37.8 s went to coarse levels
+    (docs/results/slam_table.md, fifty-second session). Measured there at 1 (``--parallel --threads 2``, runs
+    alternating with the default, one at a time; ATE Sim(3) m, frames/s): the HoloLens walk 0.30-0.45 (median 0.31),
+    4.5-5.6 frames/s (median 4.7), 5 runs -> 0.30-0.50 (median 0.35, two runs above 0.4, one 21 deg off in rotation),
+    6.1-7.8 (median 6.4), 6 runs; TUM fr1/rpy 0.0137-0.0169, 1.40-1.54 deg, 12.2-15.4 frames/s -> 0.0135-0.0171,
+    1.33-1.52 deg, 11.7-14.3 (5 runs each; its mapping keeps up); but the generator's corridor 44 0.257 / 0.256 -> 0.305
+    / 0.333 and walk 42 0.223 / 0.219 -> 0.253 / 0.243 at 1.1-1.3x the frames/s (walk 10 0.335 / 0.170 -> 0.178 / 0.162,
+    hand-held 0.100 / 0.083 -> 0.072 / 0.084, fast turn the same). Speed for a little of the map on some walks: left for
+    a user to choose."""
     solve_process: bool = False
     """Parallel mapping on the CPU: the window solve and the marginalisation run in a child process
     (:mod:`codeslam.slam.solve_process`) instead of on the mapping thread, so that their Python work does not take
@@ -548,6 +560,9 @@ class WindowConfig:
             raise ConfigError("window.free_scale needs window.sfm.geometric_space: log_depth")
         if self.free_scale and self.map_prior_weight > 0:  # measured apart only; together a test's window diverged
             raise ConfigError("window.free_scale needs window.map_prior_weight: 0 (the two together are not measured)")
+        if not (isinstance(self.coarse_iterations_after_stop, int) and self.coarse_iterations_after_stop >= -1):
+            raise ConfigError(f"window.coarse_iterations_after_stop must be an integer >= 0, or -1, got "
+                              f"{self.coarse_iterations_after_stop}")
         if self.sfm.rolling_shutter:  # the window's marginalisation and the tracker have no readout rotations
             raise ConfigError("window.sfm.rolling_shutter is supported by `codeslam sfm` only, not in SLAM")
 

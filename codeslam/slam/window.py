@@ -408,11 +408,14 @@ class SlidingWindow:
             scale = levels[lvl].uv.shape[0] / n_prior if self.cfg.scale_prior_with_level else 1.0
             return PairProblem(levels[lvl], pairs, cfg, self.level_terms(levels[lvl], sparse_terms, scale))
 
-        # the tracker's stop reaches the finest level only (WindowConfig.interrupt_finest_only)
+        # the tracker's stop reaches the finest level only (WindowConfig.interrupt_finest_only; the coarser ones
+        # make at most coarse_iterations_after_stop more iterations after it, when that is set)
         cuttable = {min(cfg.pyramid_levels)} if self.cfg.interrupt_finest_only else None
         state, report.levels, _ = coarse_to_fine(problem_at, state, layout, cfg,
                                                  zip(cfg.pyramid_levels, cfg.max_iterations),
-                                                 interrupted=interrupted, interruptible_levels=cuttable)
+                                                 interrupted=interrupted, interruptible_levels=cuttable,
+                                                 after_stop=None if self.cfg.coarse_iterations_after_stop < 0
+                                                 else self.cfg.coarse_iterations_after_stop)
         report.interrupted = bool(report.levels) and report.levels[-1][1].reason == "interrupted"
         report.pairs = id_pairs
         return WindowSolution(ids, [project_to_se3(state.poses[i]) for i in range(len(ids))],

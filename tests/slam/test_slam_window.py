@@ -12,6 +12,7 @@ import pytest
 import torch
 from slam_scene import small_config, synth_frames
 
+from codeslam.errors import ConfigError
 from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import Keyframe
@@ -286,6 +287,32 @@ def test_by_default_the_trackers_stop_reaches_the_finest_level_only():
     for (lvl, lm), (lvl_full, lm_full) in zip(rep.levels[:-1], full.levels[:-1]):
         assert lvl == lvl_full and lm.reason != "interrupted" and lm.iterations == lm_full.iterations > 0
         assert lm.costs == lm_full.costs  # the same steps as without any stop
+
+
+def test_after_the_stop_the_coarser_levels_run_at_most_the_iterations_allowed():
+    """WindowConfig.coarse_iterations_after_stop: a stop that comes during the second iteration of the coarsest level
+    lets it make one more, the next coarse level one, and ends the solve before the finest level's first
+    iteration; the solve's first two steps are those of a solve without any stop."""
+    frames = synth_frames(3, 16, 10.0)[::5]
+    G0 = se3_inverse(frames[0].pose)
+    truth = [G0 @ f.pose for f in frames]
+    start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
+    cfg = small_config(size=4, coarse_iterations_after_stop=1)
+    full = _window(frames, small_config(size=4), start).optimise()
+    assert full.levels[0][1].iterations > 2 and full.levels[1][1].iterations > 1  # more than the stop leaves
+    calls = {"n": 0}
+
+    def from_the_second_iteration():
+        calls["n"] += 1
+        return calls["n"] > 1
+
+    rep = _window(frames, cfg, start).optimise(from_the_second_iteration)
+    assert [lvl for lvl, _ in rep.levels] == list(cfg.window.sfm.pyramid_levels) and rep.interrupted
+    assert [(lm.iterations, lm.reason) for _, lm in rep.levels] == [(2, "interrupted"), (1, "interrupted"),
+                                                                    (0, "interrupted")]
+    assert rep.levels[0][1].costs[:2] == full.levels[0][1].costs[:2]
+    with pytest.raises(ConfigError, match="coarse_iterations_after_stop"):
+        small_config(coarse_iterations_after_stop=-2)
 
 
 def _velocity_change(prior: VelocityPrior, window: SlidingWindow) -> float:
