@@ -382,7 +382,8 @@ class CodeSLAM:
             ref, track, sparse, source, restart = found
             self._lost = 0
             if restart:  # relocalised against a keyframe outside the window: re-anchor the map there
-                return self._restart(views, ref.T_wc @ track.T_kf, track, RELOCALISED, "relocalised",
+                return self._restart(views, ref.T_wc @ track.T_kf, track, RELOCALISED,
+                                     self._relocalised_in(ref, views.frame.index, track.feature_inliers),
                                      rolled_back)
             self.ref = ref
             return self._tracked(views, ref, track, sparse, source, RELOCALISED, rolled_back)
@@ -570,6 +571,22 @@ class CodeSLAM:
         if not track.ok:
             return None
         return kf, track, sparse2 if sparse2 is not None and sparse2.ok else sparse, source, False
+
+    def _relocalised_in(self, kf: MapKeyframe, frame_index: int, inliers: int) -> str:
+        """A frame relocalised against ``kf``, outside the window, restarts the window in ``kf``'s map. When that is
+        another map than the current segment's, the frames from here on are that map's: they start a new segment
+        joined to it at once (a merge whose motion is the identity), since the current segment's frames so far lie
+        in a frame of their own (before, they kept the current segment's label, and its later keyframes lay in
+        another frame than its earlier ones). Returns the frame's reason."""
+        into = self.maps.root(kf.segment)
+        if into == self.maps.root(self.segment):
+            return "relocalised"
+        self.segment += 1
+        self._merge_seen = None
+        self.maps.join(self.segment, into)
+        self.merges.append(SegmentMerge(self.segment, into, frame_index, kf.id, inliers,
+                                        torch.eye(4, dtype=torch.float64)))
+        return f"relocalised in segment {into}'s map (keyframe {kf.id}): new segment {self.segment} of it"
 
     def _older_keyframes(self) -> list[MapKeyframe]:
         """The keyframes of the maps older than the current segment's, which it may merge into

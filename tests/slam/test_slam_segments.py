@@ -89,3 +89,49 @@ def test_a_new_segment_is_merged_into_the_first_when_the_camera_comes_back_where
         T_true = se3_inverse(frames[0].pose) @ frames[order[i]].pose  # the world is frame 0's camera
         assert float((poses[i][:3, 3] - T_true[:3, 3]).norm()) < 0.4, (i, poses[i][:3, 3], T_true[:3, 3])
         assert math.degrees(so3_angle_host(T_true[:3, :3].T @ poses[i][:3, :3])) < 3.0, i
+
+
+def test_a_frame_relocalised_in_an_older_map_starts_a_segment_of_that_map():
+    # The walk and cover of the test above, merging off: the frame after the cover starts segment 1 at the motion
+    # model's prediction. On the way back, at frame 8's place, the frame's tracking is made to fail and its
+    # relocalisation may match only the first segment's keyframes, all outside the window: the map restarts there,
+    # in segment 0's frame, so the frames from then on are a new segment of segment 0's map (not segment 1, whose
+    # earlier frames lie metres away in a frame of their own).
+    frames = preset_frames(5, 36, "walk", 10.0)
+    order = list(range(16)) + [None] * 4 + list(range(35, -1, -1))
+    seq = MemorySequence([dataclasses.replace(frames[15 if j is None else j], timestamp=1000.0 + i / 10.0, index=i,
+                                              image=torch.zeros_like(frames[0].image) if j is None
+                                              else frames[j].image) for i, j in enumerate(order)])
+    config = SLAMConfig(trajectory_smoothing=0.0, recovery=RecoveryConfig(merge_segments=False))
+    system = CodeSLAM(config, standin_depth_model(code_offset_scale=0.3))
+    at = order.index(8, 16)
+    track = system._track
+
+    def failing_track(views, ref, T_kf_guess):
+        out = track(views, ref, T_kf_guess)
+        if views.frame.index == at:
+            out = (dataclasses.replace(out[0], ok=False, reason="made to fail"), None, out[2])
+        return out
+
+    def first_segment_only(cands, frame, min_inliers):
+        return relocalise([(k, kf) for k, kf in cands if system.keyframes[k].segment == 0], frame, min_inliers)
+
+    system._track = failing_track
+    results = []
+    for f in seq.frames:
+        if f.index == at:
+            relocalise = system.sparse.relocalise
+            system.sparse.relocalise = first_segment_only
+        results.append(system.process(f))
+        if f.index == at:
+            system.sparse.relocalise = relocalise
+    system.finish()
+    assert results[at].status == "relocalised" and "segment 0's map" in results[at].reason, results[at].reason
+    assert results[at - 1].segment == 1 and results[at].segment == 2
+    assert system.maps.root(2) == 0 and system.maps.root(1) == 1
+    assert {r.segment for r in results[at:]} == {2}
+    poses = system.trajectory().poses
+    for i in range(at, len(order)):  # in the first segment's frame (the world is frame 0's camera)
+        T_true = se3_inverse(frames[0].pose) @ frames[order[i]].pose
+        assert float((poses[i][:3, 3] - T_true[:3, 3]).norm()) < 0.4, (i, poses[i][:3, 3], T_true[:3, 3])
+        assert math.degrees(so3_angle_host(T_true[:3, :3].T @ poses[i][:3, :3])) < 3.0, i
