@@ -63,16 +63,24 @@ def test_a_marginal_prior_moved_with_its_map_costs_what_it_cost_before():
     assert not torch.allclose(naive.cost(state_moved), prior.cost(state), rtol=1e-3)
 
 
-def test_a_new_segment_is_merged_into_the_first_when_the_camera_comes_back_where_that_one_mapped():
-    # The walk preset's frames 0-15, the lens covered for four frames while the camera is carried to frame 35's
-    # place, then frames 35 down to 0: the camera walks back through what the first segment mapped. Relocalisation
-    # is off, so the frame after the cover starts a new segment at the motion model's prediction, metres from the
-    # truth; coming back, it is matched to the first segment's keyframes and moved into that map.
+def _covered_walk_there_and_back():
+    """The walk preset's frames 0-15, four blank frames (the lens covered while the camera is carried to frame 35's
+    place), then frames 35 down to 0: (the preset's frames, the preset frame each frame shows or None, the
+    sequence)."""
     frames = preset_frames(5, 36, "walk", 10.0)
     order = list(range(16)) + [None] * 4 + list(range(35, -1, -1))
     seq = MemorySequence([dataclasses.replace(frames[15 if j is None else j], timestamp=1000.0 + i / 10.0, index=i,
                                               image=torch.zeros_like(frames[0].image) if j is None
                                               else frames[j].image) for i, j in enumerate(order)])
+    return frames, order, seq
+
+
+def test_a_new_segment_is_merged_into_the_first_when_the_camera_comes_back_where_that_one_mapped():
+    # The walk preset's frames 0-15, the lens covered for four frames while the camera is carried to frame 35's
+    # place, then frames 35 down to 0: the camera walks back through what the first segment mapped. Relocalisation
+    # is off, so the frame after the cover starts a new segment at the motion model's prediction, metres from the
+    # truth; coming back, it is matched to the first segment's keyframes and moved into that map.
+    frames, order, seq = _covered_walk_there_and_back()
     config = SLAMConfig(trajectory_smoothing=0.0, recovery=RecoveryConfig(relocalise=False))
     system = CodeSLAM(config, standin_depth_model(code_offset_scale=0.3))
     results = [system.process(f) for f in seq.frames]
@@ -97,11 +105,7 @@ def test_a_frame_relocalised_in_an_older_map_starts_a_segment_of_that_map():
     # relocalisation may match only the first segment's keyframes, all outside the window: the map restarts there,
     # in segment 0's frame, so the frames from then on are a new segment of segment 0's map (not segment 1, whose
     # earlier frames lie metres away in a frame of their own).
-    frames = preset_frames(5, 36, "walk", 10.0)
-    order = list(range(16)) + [None] * 4 + list(range(35, -1, -1))
-    seq = MemorySequence([dataclasses.replace(frames[15 if j is None else j], timestamp=1000.0 + i / 10.0, index=i,
-                                              image=torch.zeros_like(frames[0].image) if j is None
-                                              else frames[j].image) for i, j in enumerate(order)])
+    frames, order, seq = _covered_walk_there_and_back()
     config = SLAMConfig(trajectory_smoothing=0.0, recovery=RecoveryConfig(merge_segments=False))
     system = CodeSLAM(config, standin_depth_model(code_offset_scale=0.3))
     at = order.index(8, 16)
