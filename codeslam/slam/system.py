@@ -581,12 +581,16 @@ class CodeSLAM:
         into = self.maps.root(kf.segment)
         if into == self.maps.root(self.segment):
             return "relocalised"
-        self.segment += 1
-        self._merge_seen = None
+        self._new_segment()
         self.maps.join(self.segment, into)
         self.merges.append(SegmentMerge(self.segment, into, frame_index, kf.id, inliers,
                                         torch.eye(4, dtype=torch.float64)))
         return f"relocalised in segment {into}'s map (keyframe {kf.id}): new segment {self.segment} of it"
+
+    def _new_segment(self) -> None:
+        """The frames from here on are a new map segment (a match seen for the last one's merge is forgotten)."""
+        self.segment += 1
+        self._merge_seen = None
 
     def _older_keyframes(self) -> list[MapKeyframe]:
         """The keyframes of the maps older than the current segment's, which it may merge into
@@ -651,8 +655,7 @@ class CodeSLAM:
         self._lost += 1
         self._matches = None
         if self._lost > self.config.recovery.lost_frames and not self._anchor_problem(views):
-            self.segment += 1
-            self._merge_seen = None
+            self._new_segment()
             return self._restart(views, ref.T_wc @ T_kf_guess, track, PREDICTED,
                                  f"new segment after {self._lost - 1} lost frames ({reason})", rolled_back)
         return self._record(views.frame, ref, T_kf_guess, False, track=track, reason=reason, status=PREDICTED,
