@@ -25,6 +25,7 @@ from codeslam.sfm.config import SfMConfig
 MOTION_MODELS = ("constant_velocity", "static")
 DTYPES = ("float32", "float64")
 JACOBIAN_DTYPES = ("float32", "bfloat16", "auto")
+COARSEST_LEVEL = ("always", "unsettled")
 TRAJECTORIES = ("interpolated", "reference")
 
 
@@ -526,6 +527,17 @@ class WindowConfig:
     / 0.333 and walk 42 0.223 / 0.219 -> 0.253 / 0.243 at 1.1-1.3x the frames/s (walk 10 0.335 / 0.170 -> 0.178 / 0.162,
     hand-held 0.100 / 0.083 -> 0.072 / 0.084, fast turn the same). Speed for a little of the map on some walks: left for
     a user to choose."""
+    coarsest_level: str = "unsettled"
+    """When a solve visits the coarsest level of ``sfm.pyramid_levels``, whose wider basin a settled window does not
+    need: 'always', or 'unsettled': while the window is not yet full (a young map, whose keyframes start at the
+    network's single views) and after a solve that stopped at an iteration cap on some level or was rolled back;
+    otherwise the solve starts one level finer (DSO optimises its window at one level). Measured
+    (docs/results/slam_table.md, fifty-third session; ATE Sim(3) m): never visiting the coarsest level (32x24) lost the
+    generator walk (0.046 -> 0.55 m, 13 deg; from frame 1 0.043 -> 0.56 m), its first solves all stopping at their
+    caps; 'unsettled' holds it (0.046, 0.044, 0.043 from frames 0, 1, 2), skips the level in about three of four
+    solves and costs the window 3-15% less per keyframe (eight sequences, each run by both builds at the same time,
+    ``--threads 1``: 1.03-1.14x the frames/s, every map within 2.5%); parallel (``--threads 2``) the HoloLens walk
+    5.95 -> 6.36 and TUM fr1/rpy 14.3 -> 15.4 frames/s, medians of three and two runs, maps within their spread."""
     solve_process: bool = False
     """Parallel mapping on the CPU: the window solve and the marginalisation run in a child process
     (:mod:`codeslam.slam.solve_process`) instead of on the mapping thread, so that their Python work does not take
@@ -554,6 +566,8 @@ class WindowConfig:
             raise ConfigError(f"window.map_prior_weight must lie in [0, 1], got {self.map_prior_weight}")
         if not self.map_prior_blur > 0:
             raise ConfigError(f"window.map_prior_blur must be > 0, got {self.map_prior_blur}")
+        if self.coarsest_level not in COARSEST_LEVEL:
+            raise ConfigError(f"window.coarsest_level must be one of {COARSEST_LEVEL}, got {self.coarsest_level!r}")
         if not (isinstance(self.code_directions, int) and self.code_directions >= 0):
             raise ConfigError(f"window.code_directions must be an integer >= 0, got {self.code_directions}")
         if self.free_scale and self.sfm.geometric_space != "log_depth":  # d r_geo / d s_B = -1 needs log depth

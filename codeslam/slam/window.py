@@ -264,6 +264,9 @@ class SlidingWindow:
         # Matched keypoints between keyframes: (id A, id B) -> keypoint indices into A's and B's features.
         self.matches: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self.sparse: SparseSettings | None = None  # set by the system when it uses features
+        # whether the last solve left the window unsettled (WindowConfig.coarsest_level): the next one visits the
+        # coarsest level
+        self.unsettled = True
 
     def __len__(self) -> int:
         return len(self.keyframes)
@@ -388,6 +391,16 @@ class SlidingWindow:
         local mapping stops its bundle adjustment when a new keyframe arrives)."""
         return self.apply(self.solve(interrupted))
 
+    def levels_to_visit(self) -> list[tuple[int, int]]:
+        """The (pyramid level, iterations) of the next solve, coarse to fine: every level of ``cfg.sfm``, or
+        without the coarsest when ``coarsest_level`` is 'unsettled' and the window is full and settled (its last
+        solve converged on every level and was kept)."""
+        cfg: SfMConfig = self.cfg.sfm
+        visit = list(zip(cfg.pyramid_levels, cfg.max_iterations))
+        if self.cfg.coarsest_level == "unsettled" and len(visit) > 1 and self.is_full and not self.unsettled:
+            return visit[1:]
+        return visit
+
     def solve(self, interrupted: Callable[[], bool] | None = None) -> WindowSolution:
         """What :meth:`optimise` reaches, without writing it into the keyframes (:meth:`apply` does): the solve
         reads the window and changes nothing, so it can run on a copy elsewhere
@@ -399,7 +412,8 @@ class SlidingWindow:
         cfg: SfMConfig = self.cfg.sfm
         dtype, device = self._tensors()
         id_pairs, pairs, state, layout = self.problem()
-        levels = build_levels([k.view for k in self.keyframes], cfg.pyramid_levels, dtype, device)
+        visit = self.levels_to_visit()
+        levels = build_levels([k.view for k in self.keyframes], [lvl for lvl, _ in visit], dtype, device)
         n_prior = levels[min(cfg.pyramid_levels)].uv.shape[0]
         sparse_terms = self.sparse_terms()
 
@@ -411,8 +425,7 @@ class SlidingWindow:
         # the tracker's stop reaches the finest level only (WindowConfig.interrupt_finest_only; the coarser ones
         # make at most coarse_iterations_after_stop more iterations after it, when that is set)
         cuttable = {min(cfg.pyramid_levels)} if self.cfg.interrupt_finest_only else None
-        state, report.levels, _ = coarse_to_fine(problem_at, state, layout, cfg,
-                                                 zip(cfg.pyramid_levels, cfg.max_iterations),
+        state, report.levels, _ = coarse_to_fine(problem_at, state, layout, cfg, visit,
                                                  interrupted=interrupted, interruptible_levels=cuttable,
                                                  after_stop=None if self.cfg.coarse_iterations_after_stop < 0
                                                  else self.cfg.coarse_iterations_after_stop)
@@ -430,6 +443,8 @@ class SlidingWindow:
                              f"{[k.id for k in self.keyframes]}")
         if not solution.poses:  # fewer than two keyframes: nothing was solved
             return solution.report
+        # unsettled: a level stopped at its iteration cap, not at a tolerance (an interrupted level is not)
+        self.unsettled = any(r.reason == "max iterations" for _, r in solution.report.levels)
         for kf, T_wc, code in zip(self.keyframes, solution.poses, solution.codes):
             kf.T_wc, kf.code = T_wc, code
         self._affine.update(solution.affine)
@@ -443,7 +458,9 @@ class SlidingWindow:
                               {p: a.clone() for p, a in self._affine.items()}, list(self._pairs))
 
     def restore(self, snap: WindowSnapshot) -> None:
-        """Put back the values of ``snap`` for the keyframes still in the window."""
+        """Put back the values of ``snap`` for the keyframes still in the window (a solve rolled back: the next one
+        visits the coarsest level)."""
+        self.unsettled = True
         for k in self.keyframes:
             if k.id in snap.values:
                 k.T_wc, k.code = (v.clone() for v in snap.values[k.id])
@@ -503,6 +520,7 @@ class SlidingWindow:
         for k in left:
             k.freeze()
         self.keyframes, self.prior, self._affine, self._pairs, self.matches = [], None, {}, [], {}
+        self.unsettled = True
         return left
 
     # ---- marginalisation ------------------------------------------------------------------------------------

@@ -315,6 +315,55 @@ def test_after_the_stop_the_coarser_levels_run_at_most_the_iterations_allowed():
         small_config(coarse_iterations_after_stop=-2)
 
 
+def test_a_settled_full_window_starts_its_next_solve_one_level_finer():
+    """WindowConfig.coarsest_level 'unsettled' (the default): a full window visits every level until a solve has
+    converged on each; the next starts one level finer. A solve stopped at an iteration cap, a solve rolled back, a
+    window not yet full and 'always' visit the coarsest level."""
+    frames = synth_frames(3, 16, 10.0)[::5]
+    G0 = se3_inverse(frames[0].pose)
+    truth = [G0 @ f.pose for f in frames]
+    start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
+    def config(size=4, finest=5, **window):  # caps the coarse levels of this small window do not reach
+        cfg = small_config(size=size, **window)
+        return replace(cfg, window=replace(cfg.window, sfm=replace(cfg.window.sfm, max_iterations=(30, 30, finest))))
+
+    cfg = config()
+    every = list(cfg.window.sfm.pyramid_levels)
+    assert cfg.window.coarsest_level == "unsettled"
+
+    def visited(report):
+        return [lvl for lvl, _ in report.levels]
+
+    def settle(window):  # solve until a solve has converged on every level
+        for _ in range(5):
+            report = window.optimise()
+            assert visited(report) == every  # unsettled until then
+            if not window.unsettled:
+                return
+        raise AssertionError("the window never settled")
+
+    w = _window(frames, cfg, start)
+    settle(w)
+    assert visited(w.optimise()) == every[1:] and not w.unsettled
+    before = w.snapshot()
+    w.optimise()
+    w.restore(before)  # rolled back
+    assert w.unsettled and visited(w.optimise()) == every
+
+    w = _window(frames, config(finest=1), start)
+    assert visited(w.optimise()) == every and w.unsettled  # one iteration at the finest level: at its cap
+    assert visited(w.optimise()) == every
+
+    young = _window(frames, config(size=5), start)  # 4 of 5 keyframes
+    settle(young)
+    assert visited(young.optimise()) == every
+    always = _window(frames, config(coarsest_level="always"), start)
+    settle(always)
+    assert visited(always.optimise()) == every
+    with pytest.raises(ConfigError, match="coarsest_level"):
+        small_config(coarsest_level="never")
+
+
 def _velocity_change(prior: VelocityPrior, window: SlidingWindow) -> float:
     poses = torch.stack([k.T_wc for k in window.keyframes])
     return float(prior.residuals(SfMState(poses, torch.zeros(len(poses), 1, dtype=D), torch.zeros(0, 2, dtype=D)))
