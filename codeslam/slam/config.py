@@ -527,17 +527,20 @@ class WindowConfig:
     / 0.333 and walk 42 0.223 / 0.219 -> 0.253 / 0.243 at 1.1-1.3x the frames/s (walk 10 0.335 / 0.170 -> 0.178 / 0.162,
     hand-held 0.100 / 0.083 -> 0.072 / 0.084, fast turn the same). Speed for a little of the map on some walks: left for
     a user to choose."""
-    coarsest_level: str = "unsettled"
-    """When a solve visits the coarsest level of ``sfm.pyramid_levels``, whose wider basin a settled window does not
-    need: 'always', or 'unsettled': while the window is not yet full (a young map, whose keyframes start at the
-    network's single views) and after a solve that stopped at an iteration cap on some level or was rolled back;
-    otherwise the solve starts one level finer (DSO optimises its window at one level). Measured
-    (docs/results/slam_table.md, fifty-third session; ATE Sim(3) m): never visiting the coarsest level (32x24) lost the
-    generator walk (0.046 -> 0.55 m, 13 deg; from frame 1 0.043 -> 0.56 m), its first solves all stopping at their
-    caps; 'unsettled' holds it (0.046, 0.044, 0.043 from frames 0, 1, 2), skips the level in about three of four
-    solves and costs the window 3-15% less per keyframe (eight sequences, each run by both builds at the same time,
-    ``--threads 1``: 1.03-1.14x the frames/s, every map within 2.5%); parallel (``--threads 2``) the HoloLens walk
-    5.95 -> 6.36 and TUM fr1/rpy 14.3 -> 15.4 frames/s, medians of three and two runs, maps within their spread."""
+    coarsest_level: str = "always"
+    """When a window solve visits the coarsest level of ``sfm.pyramid_levels``: 'always' (the default), or 'unsettled':
+    while the window is not yet full (a young map, whose keyframes start at the network's single views) and after a
+    solve that stopped at an iteration cap on some level or was rolled back; otherwise the solve starts one level
+    finer (DSO optimises its window at one level). Measured (docs/results/slam_table.md, fifty-third session; ATE
+    Sim(3) m): never visiting the coarsest level (32x24) lost the generator walk (0.046 -> 0.55 m, 13 deg); 'unsettled'
+    holds it (0.046, 0.044, 0.043 from frames 0, 1, 2), skips the level in about three of four solves and costs the
+    window 3-15% less per keyframe (eight sequences, each run by both settings at the same time, ``--threads 1``:
+    1.03-1.14x the frames/s); parallel (``--threads 2``) the HoloLens walk 5.95 -> 6.36 and TUM fr1/rpy 14.3 -> 15.4
+    frames/s (medians of three and two runs). Not the default: over the 43 suite runs the ATE's geometric mean is
+    1.02x, nine runs more than 5% further off (corridor 82 and the HoloLens walk with a tenth of its frames dropped
+    1.10x, the stand-in HoloLens walk 1.11x), two better (walk 54, the covered HoloLens walk there and back 0.73x), and
+    every second HoloLens frame 0.41 -> 0.94 m, 50 deg off: four solves from frame 52 on rejected by the rollback
+    check where none was before. Speed for part of the map: a user's choice (README, "Speed")."""
     solve_process: bool = False
     """Parallel mapping on the CPU: the window solve and the marginalisation run in a child process
     (:mod:`codeslam.slam.solve_process`) instead of on the mapping thread, so that their Python work does not take
