@@ -539,8 +539,8 @@ class WindowConfig:
     frames/s (medians of three and two runs). Not the default: over the 43 suite runs the ATE's geometric mean is
     1.02x, nine runs more than 5% further off (corridor 82 and the HoloLens walk with a tenth of its frames dropped
     1.10x, the stand-in HoloLens walk 1.11x), two better (walk 54, the covered HoloLens walk there and back 0.73x), and
-    every second HoloLens frame 0.41 -> 0.94 m, 50 deg off: four solves from frame 52 on rejected by the rollback
-    check where none was before. Speed for part of the map: a user's choice (README, "Speed")."""
+    every second HoloLens frame 0.41 -> 0.94 m, 50 deg off (frames 72-80 turned 8-10 deg wrong). Speed for part of the
+    map: a user's choice (README, "Speed")."""
     solve_process: bool = False
     """Parallel mapping on the CPU: the window solve and the marginalisation run in a child process
     (:mod:`codeslam.slam.solve_process`) instead of on the mapping thread, so that their Python work does not take
