@@ -244,13 +244,20 @@ def test_window_uses_consecutive_and_overlapping_pairs_in_both_directions():
     assert all(a != b for a, b in pairs) and len(set(pairs)) == len(pairs)
 
 
-def test_an_interrupted_solve_stops_after_the_iteration_it_was_in_and_keeps_its_values():
-    """Parallel mapping stops a window solve when the tracker needs a keyframe at once: the solve ends before the
-    next iteration, the report says so, and the keyframes hold the last accepted values (which lower the cost)."""
+def _moved_keyframes():
+    """Four keyframes (synthetic frames 0, 5, 10, 15) and their poses in the first one's frame, all but the first
+    moved by the same small step from the truth: a window whose solve has something to do at every level."""
     frames = synth_frames(3, 16, 10.0)[::5]
     G0 = se3_inverse(frames[0].pose)
     truth = [G0 @ f.pose for f in frames]
-    start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
+    return frames, [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T
+                                 for T in truth[1:]]
+
+
+def test_an_interrupted_solve_stops_after_the_iteration_it_was_in_and_keeps_its_values():
+    """Parallel mapping stops a window solve when the tracker needs a keyframe at once: the solve ends before the
+    next iteration, the report says so, and the keyframes hold the last accepted values (which lower the cost)."""
+    frames, start = _moved_keyframes()
     cfg = small_config(size=4, interrupt_finest_only=False)  # any level may be cut
     full = _window(frames, cfg, start).optimise()
     assert not full.interrupted and full.iterations > 3
@@ -273,10 +280,7 @@ def test_by_default_the_trackers_stop_reaches_the_finest_level_only():
     """WindowConfig.interrupt_finest_only (the default): a stop asked for from the start still lets the coarser
     levels run whole, as a solve without any stop runs them, and ends the solve before the finest level's first
     iteration."""
-    frames = synth_frames(3, 16, 10.0)[::5]
-    G0 = se3_inverse(frames[0].pose)
-    truth = [G0 @ f.pose for f in frames]
-    start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
+    frames, start = _moved_keyframes()
     cfg = small_config(size=4)
     assert cfg.window.interrupt_finest_only
     full = _window(frames, cfg, start).optimise()
@@ -293,10 +297,7 @@ def test_after_the_stop_the_coarser_levels_run_at_most_the_iterations_allowed():
     """WindowConfig.coarse_iterations_after_stop: a stop that comes during the second iteration of the coarsest level
     lets it make one more, the next coarse level one, and ends the solve before the finest level's first
     iteration; the solve's first two steps are those of a solve without any stop."""
-    frames = synth_frames(3, 16, 10.0)[::5]
-    G0 = se3_inverse(frames[0].pose)
-    truth = [G0 @ f.pose for f in frames]
-    start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
+    frames, start = _moved_keyframes()
     cfg = small_config(size=4, coarse_iterations_after_stop=1)
     full = _window(frames, small_config(size=4), start).optimise()
     assert full.levels[0][1].iterations > 2 and full.levels[1][1].iterations > 1  # more than the stop leaves
@@ -319,10 +320,8 @@ def test_a_settled_full_window_starts_its_next_solve_one_level_finer():
     """WindowConfig.coarsest_level 'unsettled': a full window visits every level until a solve has converged on each;
     the next starts one level finer. A solve stopped at an iteration cap, a solve rolled back, a window not yet full
     and 'always' (the default) visit the coarsest level."""
-    frames = synth_frames(3, 16, 10.0)[::5]
-    G0 = se3_inverse(frames[0].pose)
-    truth = [G0 @ f.pose for f in frames]
-    start = [truth[0]] + [se3_exp(torch.tensor([0.01, 0.0, -0.01, 0.0, 0.01, 0.0], dtype=D)) @ T for T in truth[1:]]
+    frames, start = _moved_keyframes()
+
     def config(size=4, finest=5, coarsest_level="unsettled"):  # caps the coarse levels here do not reach
         cfg = small_config(size=size, coarsest_level=coarsest_level)
         return replace(cfg, window=replace(cfg.window, sfm=replace(cfg.window.sfm, max_iterations=(30, 30, finest))))
