@@ -35,7 +35,7 @@ Gauss-Newton steps, their acceptance and the stopping rules are the mapping's ow
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 import torch.nn.functional as F
@@ -43,7 +43,7 @@ import torch.nn.functional as F
 from codeslam.clock import NO_CLOCK, Clock
 from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH, MIN_KEYPOINT_DEPTH
 from codeslam.geometry.camera import PinholeCamera, unproject_jac_depth
-from codeslam.geometry.image import image_gradients, image_pyramid, pixels_to_grid, pyramid_cameras, rgb_to_gray
+from codeslam.geometry.image import image_gradients, image_pyramid, pyramid_cameras, rgb_to_gray
 from codeslam.geometry.lie import hat, se3_exp_host, se3_inverse, se3_log_host
 from codeslam.geometry.proximity import prox_to_depth
 from codeslam.sfm.config import SfMConfig
@@ -133,10 +133,19 @@ class TrackingReference:
 class FrameLevel:
     """The frame at one pyramid level. stack: (1, K, H, W) what one bilinear lookup reads: grey, its Sobel
     gradients d/du and d/dv and, when the frame has a validity mask, its real-pixel mask (K = 3 or 4); params: (4,)
-    intrinsics (fx, fy, cx, cy) at this level."""
+    intrinsics (fx, fy, cx, cy) at this level. ``intrinsics`` (the four as 0-dim tensors) and ``grid_scale`` (what
+    :func:`~codeslam.geometry.image.pixels_to_grid` multiplies by) are made once here, not at every evaluation: the
+    alignment is bound by the count of its small tensor operations, not by their size (see ``TrackingProblem``)."""
 
     stack: torch.Tensor
     params: torch.Tensor
+    intrinsics: tuple[torch.Tensor, ...] = field(init=False, repr=False, compare=False)
+    grid_scale: torch.Tensor = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        H, W = self.stack.shape[-2:]
+        object.__setattr__(self, "intrinsics", tuple(self.params.unbind()))
+        object.__setattr__(self, "grid_scale", self.params.new_tensor([2.0 / max(W - 1, 1), 2.0 / max(H - 1, 1)]))
 
     @property
     def height(self) -> int:
@@ -215,20 +224,42 @@ class AlignmentEvaluation:
     row_cost: torch.Tensor | None = None
 
 
+@dataclass(frozen=True)
+class PhotometricConstants:
+    """The 0-dim tensors of the photometric cost's settings, made once per problem rather than at every
+    evaluation: the sigma (ii), the Huber threshold k (iii), ``sigma**2`` and the price ``0.5 k k`` of a masked row."""
+
+    zero: torch.Tensor
+    sigma: torch.Tensor
+    k: torch.Tensor
+    sigma2: torch.Tensor
+    half_kk: torch.Tensor
+
+    @classmethod
+    def of(cls, cfg: SfMConfig, dtype: torch.dtype, device: torch.device) -> PhotometricConstants:
+        zero = torch.zeros((), dtype=dtype, device=device)
+        sigma = torch.full_like(zero, cfg.sigma_photometric)
+        k = torch.full_like(zero, cfg.huber_photometric)
+        return cls(zero, sigma, k, sigma**2, 0.5 * k * k)
+
+
 def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Tensor, t_BA: torch.Tensor,
-                          affine: torch.Tensor | None, cfg: SfMConfig) -> AlignmentEvaluation:
+                          affine: torch.Tensor | None, cfg: SfMConfig,
+                          constants: PhotometricConstants | None = None) -> AlignmentEvaluation:
     """The keyframe's pixels warped into the frame by ``(R_BA, t_BA)`` ((3, 3), (3,): maps A's points into B),
     with ``affine`` (2,) (log-gain, bias), or None for no brightness correction: residuals, masks, IRLS weights
     and robust cost, as :func:`~codeslam.sfm.residuals.evaluate_pairs` and
     :func:`~codeslam.sfm.residuals.robust_weights` give them for the pair (keyframe, frame), with the same
     arithmetic for the pixel positions (the masks at the border depend on their last bit: from the identity a
-    pixel lands exactly on it). Differentiable in the pose and ``affine`` (masks and weights are not)."""
+    pixel lands exactly on it). Differentiable in the pose and ``affine`` (masks and weights are not).
+    ``constants``: ``cfg``'s constants made before (None: made here)."""
     N = ref.gray.shape[0]
     H, W = frame.height, frame.width
-    zero = torch.zeros((), dtype=ref.gray.dtype, device=ref.gray.device)
+    c = constants if constants is not None else PhotometricConstants.of(cfg, ref.gray.dtype, ref.gray.device)
+    zero = c.zero
     x = torch.addmm(t_BA.unsqueeze(-1), R_BA, ref.xyz)  # Eq. 11: x = R pi^-1(u, d) + t, (3, N)
     z = x[2]
-    fx, fy, cx, cy = frame.params
+    fx, fy, cx, cy = frame.intrinsics
     u = fx * x[0] / z + cx  # Eq. 5: v = pi(x), as codeslam.geometry.camera.project
     v = fy * x[1] / z + cy
     # (i) masks: inside B (minus the border), in front of B, valid depth and real pixels of A (inside_image's
@@ -238,7 +269,7 @@ def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Te
     uv = torch.stack([u, v], dim=-1)  # (N, 2)
     # The lookup of codeslam.geometry.image.bilinear_sample at v (the paper's square brackets); masked points are
     # moved into the image (finite) and their values never used.
-    grid = pixels_to_grid(uv, H, W).clamp(-2.0, 2.0).nan_to_num(0.0)
+    grid = (uv * frame.grid_scale - 1.0).clamp(-2.0, 2.0).nan_to_num(0.0)  # pixels_to_grid, its scale kept
     sampled = F.grid_sample(frame.stack, grid.view(1, 1, N, 2), mode="bilinear", padding_mode="zeros",
                             align_corners=True).view(-1, N)  # (K, N)
     gray_B, grad_B = sampled[0], sampled[1:3]
@@ -253,13 +284,12 @@ def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Te
     else:
         gain, bias = torch.exp(affine[0]), affine[1]
     r = (ref.gray - (gain * gray_B + bias)) * vf  # Eq. 13 with affine brightness (Sec. 5.2), 0 where masked
-    sigma = torch.full_like(zero, cfg.sigma_photometric)  # (ii)
-    k = torch.full_like(zero, cfg.huber_photometric)
+    sigma, k = c.sigma, c.k  # (ii), (iii)
     rho, irls = huber_cost_and_weight(r / sigma, k)  # (iii); masked rows have r = 0, so rho = 0
-    w = ref.slant * irls * vf / sigma**2  # (iv), the IRLS weight
+    w = ref.slant * irls * vf / c.sigma2  # (iv), the IRLS weight
     rows = ref.slant * rho  # masked rows have rho = 0
     if cfg.masked_rows == "threshold":
-        cost = rows.sum() + 0.5 * k * k * (N - vf.sum())  # masked rows cost rho(k) (loss (i))
+        cost = rows.sum() + c.half_kk * (N - vf.sum())  # masked rows cost rho(k) (loss (i))
     else:
         cost = masked_mean_cost(rows.sum(), vf.sum(), N, k)  # masked rows at the valid rows' mean (loss (i))
     return AlignmentEvaluation(r, valid, w, sigma, R_BA, t_BA, x, gray_B, grad_B, gain, cost, row_cost=rows)
@@ -322,6 +352,7 @@ class KeypointTerm:
         self.uv = term.uv_b.to(dtype=dtype, device=device).T.contiguous()
         self.sigma = term.sigma.to(dtype=dtype, device=device)
         self.params = term.camera.params(dtype, device)
+        self._intrinsics = tuple(self.params.unbind())  # fx, fy, cx, cy: unpacked once, not per evaluation
         self.huber = torch.tensor(float(term.huber), dtype=dtype, device=device)
         self.weight = float(term.weight)
         # Per evaluation only what depends on the pose: the constants of the robust cost computed once.
@@ -331,7 +362,7 @@ class KeypointTerm:
     def evaluate(self, R_BA: torch.Tensor, t_BA: torch.Tensor) -> tuple[torch.Tensor, ...]:
         """-> cost (), residuals r (2, M) in pixels, the points x (3, M) in B and IRLS weights (M,) (0 behind B)."""
         x = torch.addmm(t_BA.unsqueeze(-1), R_BA, self.xyz)  # x = T_BA X_A (the paper's Eq. 5 with known depth)
-        fx, fy, cx, cy = self.params
+        fx, fy, cx, cy = self._intrinsics
         r = torch.stack([fx * x[0] / x[2] + cx, fy * x[1] / x[2] + cy]) - self.uv  # r = pi(x) - u_B
         front = x[2] > MIN_KEYPOINT_DEPTH
         rho, irls = huber_cost_and_weight(torch.hypot(r[0], r[1]) / self.sigma, self.huber)  # |r| / sigma
@@ -348,7 +379,7 @@ class KeypointTerm:
     def jacobian(self, x: torch.Tensor) -> torch.Tensor:
         """x (3, M) the points in B -> (6, 2, M) ``d r / d xi_BA`` (left increment of T_BA): each residual row a
         (a row of d pi / d x) gives ``[a, x x a]`` (Eqs. 7-8, as :func:`~codeslam.sfm.warp.pose_row`)."""
-        fx, fy = self.params[0], self.params[1]
+        fx, fy = self._intrinsics[:2]
         J = x.new_zeros((POSE_DIM, 2, x.shape[1]))  # written in place: no stacks of copies
         inv_z = 1.0 / x[2]
         torch.mul(fx, inv_z, out=J[0, 0])  # d u / d x = (fx/z, 0, -fx x/z^2)
@@ -449,6 +480,7 @@ class TrackingProblem:
         self._affine_sigma = sigma
         self._affine_inv_var = 1.0 / sigma**2
         self._affine_H = torch.diag(self._affine_inv_var)
+        self._constants = PhotometricConstants.of(cfg, ref.gray.dtype, ref.gray.device)
         self._evaluated: list[tuple[TrackingState, float, AlignmentEvaluation]] = []
 
     def evaluate(self, state: TrackingState) -> tuple[float, AlignmentEvaluation]:
@@ -456,7 +488,7 @@ class TrackingProblem:
         R_BA = R.T  # T_BA = T_wB^-1 T_wA = T_kf^-1 with the keyframe at the origin
         t_BA = -(R_BA @ t)
         affine = state.affine if self.cfg.affine_brightness else None
-        ev = photometric_residuals(self.ref, self.frame, R_BA, t_BA, affine, self.cfg)
+        ev = photometric_residuals(self.ref, self.frame, R_BA, t_BA, affine, self.cfg, self._constants)
         cost = ev.cost
         if self.cfg.affine_brightness:  # Gaussian prior on (log-gain, bias)
             cost = cost + 0.5 * (state.affine / self._affine_sigma.to(state.affine.dtype)).square().sum()
