@@ -12,7 +12,7 @@ import torch
 from slam_scene import small_config, synth_frames
 
 from codeslam.geometry.camera import pixel_grid, project
-from codeslam.geometry.image import rgb_to_gray
+from codeslam.geometry.image import pixels_to_grid, rgb_to_gray
 from codeslam.geometry.lie import se3_act, se3_exp, se3_inverse, se3_log
 from codeslam.sfm.keyframes import Keyframe
 from codeslam.sfm.variables import CODE, POSE, BlockId, VariableLayout
@@ -130,6 +130,36 @@ def test_keypoint_inliers_are_the_reprojection_terms_own():
         ours = KeypointTerm.inliers(r, x, threshold)
         assert 0 < int(ours.sum()) < len(term)  # the threshold splits the matches
         assert torch.equal(ours, term.inliers(state.to_sfm(), threshold))
+
+
+@pytest.mark.parametrize("masked_rows", ["threshold", "common"])
+def test_the_constants_a_problem_makes_once_give_its_evaluations_bit_for_bit(masked_rows):
+    # TrackingProblem makes the photometric cost's constants once (PhotometricConstants), the frame level its
+    # intrinsics and pixels_to_grid's scale (FrameLevel): an evaluation with them is, to the last bit, the one that
+    # makes them from the settings and the intrinsics as it goes.
+    problem, state = _level_problem(masked_rows=masked_rows)
+    frame = problem.frame
+    assert torch.equal(torch.stack(frame.intrinsics), frame.params)
+    uv = torch.rand(7, 2, dtype=D, generator=torch.Generator().manual_seed(3)) * 60.0
+    assert torch.equal(uv * frame.grid_scale - 1.0, pixels_to_grid(uv, frame.height, frame.width))
+    R_BA, t_BA = _relative(state.T_kf)
+    made_here = photometric_residuals(problem.ref, problem.frame, R_BA, t_BA, state.affine, problem.cfg)
+    _, ev = problem.evaluate(state)
+    for name in ("r", "valid", "w", "sigma", "cost", "row_cost", "gray_B", "grad_B", "x"):
+        assert torch.equal(getattr(ev, name), getattr(made_here, name)), name
+    # and both are the loss's definitions, written out here: Huber (iii) of r / sigma (ii), slant-weighted (iv),
+    # masked rows at rho(k) ('threshold') or at the valid rows' mean ('common') (i)
+    sigma, k = problem.cfg.sigma_photometric, problem.cfg.huber_photometric
+    s = ev.r / sigma
+    a = s.abs()
+    rho = torch.where(a <= k, 0.5 * s * s, k * a - 0.5 * k * k)
+    vf = ev.valid.to(D)
+    irls = torch.where(a <= k, torch.ones_like(a), k / a)
+    torch.testing.assert_close(ev.w, problem.ref.slant * irls * vf / sigma**2)
+    rows, n, N = (problem.ref.slant * rho * vf).sum(), vf.sum(), ev.r.numel()
+    expected = rows + 0.5 * k * k * (N - n) if masked_rows == "threshold" else rows * N / n
+    assert 0 < n < N  # some rows masked: their price is tested
+    torch.testing.assert_close(ev.cost, expected)
 
 
 @pytest.mark.parametrize("masked_rows", ["threshold", "common"])
