@@ -64,11 +64,15 @@ def pyramid_cameras(camera: PinholeCamera, levels: int) -> list[PinholeCamera]:
     return [camera.scaled(0.5**k) for k in range(levels)]
 
 
-def pixels_to_grid(uv: torch.Tensor, height: int, width: int) -> torch.Tensor:
+def grid_scale(height: int, width: int, like: torch.Tensor) -> torch.Tensor:
+    """(2,) what :func:`pixels_to_grid` multiplies pixel coordinates (u, v) by, in ``like``'s dtype and device."""
+    return like.new_tensor([2.0 / max(width - 1, 1), 2.0 / max(height - 1, 1)])
+
+
+def pixels_to_grid(uv: torch.Tensor, height: int, width: int, scale: torch.Tensor | None = None) -> torch.Tensor:
     """Pixel coordinates (..., 2) -> ``grid_sample`` coordinates in [-1, 1] for ``align_corners=True``
-    (pixel 0 -> -1, pixel W-1 -> +1)."""
-    scale = uv.new_tensor([2.0 / max(width - 1, 1), 2.0 / max(height - 1, 1)])
-    return uv * scale - 1.0
+    (pixel 0 -> -1, pixel W-1 -> +1). ``scale``: :func:`grid_scale` of the image, made before (None: made here)."""
+    return uv * (grid_scale(height, width, uv) if scale is None else scale) - 1.0
 
 
 def inside_image(uv: torch.Tensor, height: int, width: int, margin: float = 0.0) -> torch.Tensor:

@@ -43,7 +43,14 @@ import torch.nn.functional as F
 from codeslam.clock import NO_CLOCK, Clock
 from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH, MIN_KEYPOINT_DEPTH
 from codeslam.geometry.camera import PinholeCamera, unproject_jac_depth
-from codeslam.geometry.image import image_gradients, image_pyramid, pyramid_cameras, rgb_to_gray
+from codeslam.geometry.image import (
+    grid_scale,
+    image_gradients,
+    image_pyramid,
+    pixels_to_grid,
+    pyramid_cameras,
+    rgb_to_gray,
+)
 from codeslam.geometry.lie import hat, se3_exp_host, se3_inverse, se3_log_host
 from codeslam.geometry.proximity import prox_to_depth
 from codeslam.sfm.config import SfMConfig
@@ -133,10 +140,10 @@ class TrackingReference:
 class FrameLevel:
     """The frame at one pyramid level. stack: (1, K, H, W) what one bilinear lookup reads: grey, its Sobel
     gradients d/du and d/dv and, when the frame has a validity mask, its real-pixel mask (K = 3 or 4); params: (4,)
-    intrinsics (fx, fy, cx, cy) at this level. ``intrinsics`` (the four as 0-dim tensors) and ``grid_scale`` (what
-    :func:`~codeslam.geometry.image.pixels_to_grid` multiplies by) are made once here, not at every evaluation: the
-    alignment is bound by the count of its small tensor operations, not by their size (about 1,700 torch calls a
-    frame on TUM fr1/rpy; docs/results/slam_table.md, fifty-fourth session)."""
+    intrinsics (fx, fy, cx, cy) at this level. ``intrinsics`` (the four as 0-dim tensors) and ``grid_scale``
+    (:func:`~codeslam.geometry.image.grid_scale`, what ``pixels_to_grid`` multiplies by) are made once here, not at
+    every evaluation: the alignment is bound by the count of its small tensor operations, not by their size (about
+    1,700 torch calls a frame on TUM fr1/rpy; docs/results/slam_table.md, fifty-fourth session)."""
 
     stack: torch.Tensor
     params: torch.Tensor
@@ -146,7 +153,7 @@ class FrameLevel:
     def __post_init__(self) -> None:
         H, W = self.stack.shape[-2:]
         object.__setattr__(self, "intrinsics", tuple(self.params.unbind()))
-        object.__setattr__(self, "grid_scale", self.params.new_tensor([2.0 / max(W - 1, 1), 2.0 / max(H - 1, 1)]))
+        object.__setattr__(self, "grid_scale", grid_scale(H, W, self.params))
 
     @property
     def height(self) -> int:
@@ -270,7 +277,7 @@ def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Te
     uv = torch.stack([u, v], dim=-1)  # (N, 2)
     # The lookup of codeslam.geometry.image.bilinear_sample at v (the paper's square brackets); masked points are
     # moved into the image (finite) and their values never used.
-    grid = (uv * frame.grid_scale - 1.0).clamp(-2.0, 2.0).nan_to_num(0.0)  # pixels_to_grid, its scale kept
+    grid = pixels_to_grid(uv, H, W, frame.grid_scale).clamp(-2.0, 2.0).nan_to_num(0.0)
     sampled = F.grid_sample(frame.stack, grid.view(1, 1, N, 2), mode="bilinear", padding_mode="zeros",
                             align_corners=True).view(-1, N)  # (K, N)
     gray_B, grad_B = sampled[0], sampled[1:3]

@@ -135,13 +135,14 @@ def test_keypoint_inliers_are_the_reprojection_terms_own():
 @pytest.mark.parametrize("masked_rows", ["threshold", "common"])
 def test_the_constants_a_problem_makes_once_give_its_evaluations_bit_for_bit(masked_rows):
     # TrackingProblem makes the photometric cost's constants once (PhotometricConstants), the frame level its
-    # intrinsics and pixels_to_grid's scale (FrameLevel): an evaluation with them is, to the last bit, the one that
-    # makes them from the settings and the intrinsics as it goes.
+    # intrinsics and pixels_to_grid's scale (FrameLevel): the frame level's are its params and its size's scale, and
+    # an evaluation with the problem's constants is, to the last bit, one that makes the constants as it goes.
     problem, state = _level_problem(masked_rows=masked_rows)
     frame = problem.frame
     assert torch.equal(torch.stack(frame.intrinsics), frame.params)
     uv = torch.rand(7, 2, dtype=D, generator=torch.Generator().manual_seed(3)) * 60.0
-    assert torch.equal(uv * frame.grid_scale - 1.0, pixels_to_grid(uv, frame.height, frame.width))
+    assert torch.equal(pixels_to_grid(uv, frame.height, frame.width, frame.grid_scale),
+                       pixels_to_grid(uv, frame.height, frame.width))
     R_BA, t_BA = _relative(state.T_kf)
     made_here = photometric_residuals(problem.ref, problem.frame, R_BA, t_BA, state.affine, problem.cfg)
     _, ev = problem.evaluate(state)
