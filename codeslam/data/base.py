@@ -10,6 +10,14 @@ import numpy as np
 import torch
 
 from codeslam.data.frame import Frame
+from codeslam.data.imageio import (
+    check_depth_shape,
+    check_frame_shapes,
+    frame_index,
+    read_rgb,
+    undistort_depth_map,
+    undistort_frame,
+)
 from codeslam.geometry.camera import PinholeCamera
 
 
@@ -55,6 +63,13 @@ class Sequence(abc.ABC):
         """(N, 4, 4) float64 ground-truth ``T_wc`` at the frame timestamps, or None."""
         return self._gt
 
+    def _pose(self, i: int) -> torch.Tensor | None:
+        """Frame ``i``'s ground-truth ``T_wc`` (a copy), or None: no ground truth, or none near its timestamp (a
+        NaN row)."""
+        if self._gt is None or bool(torch.isnan(self._gt[i]).any()):
+            return None
+        return self._gt[i].clone()
+
     def _read_gt(
         self, path: Path, read, stamps: np.ndarray, max_gap: float, what: str = "frame"
     ) -> torch.Tensor | None:
@@ -98,3 +113,43 @@ class Sequence(abc.ABC):
     def __iter__(self):
         for i in range(len(self)):
             yield self[i]
+
+
+class ImageFileSequence(Sequence):
+    """A reader of listed image files, optional depth files beside them and a lens that may be undistorted (TUM,
+    image folders, EuRoC, TartanAir): each reads, checks and undistorts a frame the same way. A subclass lists the
+    files in ``__init__`` and, with depth files, says how one is read (:meth:`_read_depth`)."""
+
+    _images: list[Path]  # each frame's image file
+    _depths: list[Path] | None = None  # each frame's depth file, or None without depth
+    source_camera: PinholeCamera  # the camera as recorded, with its lens distortion
+    undistort: bool = False  # whether frames are resampled to ``_camera`` (the distortion removed)
+
+    @property
+    def has_depth(self) -> bool:
+        return self._depths is not None
+
+    def _read_depth(self, path: Path) -> torch.Tensor:
+        """(H, W) metres of the depth file ``path`` (readers with depth files say how)."""
+        raise NotImplementedError(f"{type(self).__name__} reads no depth files")
+
+    def frame(self, i: int, depth: bool = True) -> Frame:
+        i = frame_index(i, len(self))
+        image = read_rgb(self._images[i])
+        depth_map, depth_path = None, None
+        if depth and self._depths is not None:
+            depth_path = self._depths[i]
+            depth_map = self._read_depth(depth_path)
+        check_frame_shapes(self.source_camera, image, depth_map, self._images[i], depth_path)
+        valid = None
+        if self.undistort:
+            image, depth_map, valid = undistort_frame(self.source_camera, image, depth_map)
+        return Frame(float(self._stamps[i]), image, self._camera, depth_map, self._pose(i), i, valid)
+
+    def depth(self, i: int) -> torch.Tensor | None:
+        i = frame_index(i, len(self))
+        if self._depths is None:
+            return None
+        depth = self._read_depth(self._depths[i])
+        check_depth_shape(self.source_camera, depth, self._depths[i])
+        return undistort_depth_map(self.source_camera, depth) if self.undistort else depth

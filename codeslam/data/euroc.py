@@ -24,18 +24,10 @@ import numpy as np
 import torch
 import yaml
 
-from codeslam.data.base import Sequence
+from codeslam.data.base import ImageFileSequence
 from codeslam.data.euroc_csv import NS_PER_S, read_euroc_csv
 from codeslam.data.folder import yaml_error_text
-from codeslam.data.frame import Frame
-from codeslam.data.imageio import (
-    check_frame_shapes,
-    frame_index,
-    read_rgb,
-    require_file,
-    resolve_in_root,
-    undistort_frame,
-)
+from codeslam.data.imageio import require_file, resolve_in_root
 from codeslam.data.textfile import check_increasing, data_lines
 from codeslam.errors import CodeSLAMError, DatasetError
 from codeslam.geometry.camera import PinholeCamera
@@ -131,7 +123,7 @@ def read_sensor_yaml(path: Path) -> tuple[PinholeCamera, torch.Tensor]:
     return camera, T_BS
 
 
-class EurocSequence(Sequence):
+class EurocSequence(ImageFileSequence):
     """One camera of an EuRoC MAV sequence (``cam0`` by default)."""
 
     format_name = "euroc"
@@ -154,7 +146,7 @@ class EurocSequence(Sequence):
         sensor = cam_dir / "sensor.yaml"
         if not sensor.is_file():
             raise DatasetError(f"EuRoC camera calibration not found: {sensor}")
-        self._stamps, self._files = read_cam_csv(csv, cam_dir / "data")
+        self._stamps, self._images = read_cam_csv(csv, cam_dir / "data")
         if len(self._stamps) == 0:
             raise DatasetError(f"{csv} lists no images")
         camera, self.T_BS = read_sensor_yaml(sensor)
@@ -173,18 +165,3 @@ class EurocSequence(Sequence):
             root.name == "mav0" and (root / "cam0" / "data.csv").is_file()
         )
 
-    @property
-    def has_depth(self) -> bool:
-        return False
-
-    def frame(self, i: int, depth: bool = True) -> Frame:  # no depth to read
-        i = frame_index(i, len(self))
-        image = read_rgb(self._files[i])
-        check_frame_shapes(self.source_camera, image, None, self._files[i])
-        valid = None
-        if self.undistort:
-            image, _, valid = undistort_frame(self.source_camera, image, None)
-        pose = None
-        if self._gt is not None and not bool(torch.isnan(self._gt[i]).any()):
-            pose = self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, None, pose, i, valid)

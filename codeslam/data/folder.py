@@ -37,19 +37,8 @@ import numpy as np
 import torch
 import yaml
 
-from codeslam.data.base import Sequence
-from codeslam.data.frame import Frame
-from codeslam.data.imageio import (
-    check_depth_shape,
-    check_frame_shapes,
-    frame_index,
-    image_size,
-    read_depth_npy,
-    read_depth_png,
-    read_rgb,
-    undistort_depth_map,
-    undistort_frame,
-)
+from codeslam.data.base import ImageFileSequence
+from codeslam.data.imageio import image_size, read_depth_npy, read_depth_png
 from codeslam.data.trajectory import read_tum
 from codeslam.errors import CodeSLAMError, ConfigError, DatasetError
 from codeslam.geometry.camera import PinholeCamera
@@ -130,7 +119,7 @@ def _as_number(stem: str) -> float | None:
     return v if math.isfinite(v) else None
 
 
-class FolderSequence(Sequence):
+class FolderSequence(ImageFileSequence):
     """A folder of images + ``camera.yaml`` (see the module docstring)."""
 
     format_name = "folder"
@@ -196,34 +185,6 @@ class FolderSequence(Sequence):
     @staticmethod
     def detect(root: Path) -> bool:
         return (Path(root) / CAMERA_FILE).is_file()
-
-    @property
-    def has_depth(self) -> bool:
-        return self._depths is not None
-
-    def frame(self, i: int, depth: bool = True) -> Frame:
-        i = frame_index(i, len(self))
-        image = read_rgb(self._images[i])
-        depth_map, depth_path = None, None
-        if depth and self._depths is not None:
-            depth_path = self._depths[i]
-            depth_map = self._read_depth(depth_path)
-        check_frame_shapes(self.source_camera, image, depth_map, self._images[i], depth_path)
-        valid = None
-        if self.undistort:
-            image, depth_map, valid = undistort_frame(self.source_camera, image, depth_map)
-        pose = None
-        if self._gt is not None and not bool(torch.isnan(self._gt[i]).any()):
-            pose = self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, depth_map, pose, i, valid)
-
-    def depth(self, i: int) -> torch.Tensor | None:
-        i = frame_index(i, len(self))
-        if self._depths is None:
-            return None
-        depth = self._read_depth(self._depths[i])
-        check_depth_shape(self.source_camera, depth, self._depths[i])
-        return undistort_depth_map(self.source_camera, depth) if self.undistort else depth
 
     def _read_depth(self, path: Path) -> torch.Tensor:
         return read_depth_npy(path) if path.suffix == ".npy" else read_depth_png(path, self.depth_factor)

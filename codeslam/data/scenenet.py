@@ -30,9 +30,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from codeslam.data.base import Sequence
-from codeslam.data.frame import Frame
-from codeslam.data.imageio import check_frame_shapes, frame_index, read_depth_png, read_rgb, require_file
+from codeslam.data.base import ImageFileSequence
+from codeslam.data.imageio import check_depth_shape, read_depth_png, require_file
 from codeslam.data.scenenet_proto import read_trajectories
 from codeslam.errors import DatasetError
 from codeslam.geometry.camera import PinholeCamera, pixel_grid, unproject_jac_depth
@@ -119,7 +118,7 @@ def _find_trajectory(root: Path, protobuf: Path | None):
     raise DatasetError(f"no trajectory with a render_path naming {root} in {names}")
 
 
-class SceneNetSequence(Sequence):
+class SceneNetSequence(ImageFileSequence):
     """One SceneNet RGB-D trajectory folder (see the module docstring)."""
 
     format_name = "scenenet"
@@ -164,7 +163,7 @@ class SceneNetSequence(Sequence):
             raise DatasetError(f"trajectory {traj.render_path!r} in {self.gt_path} has no views")
         self._stamps = np.array(stamps, dtype=np.float64)
         self._gt = torch.stack(poses)  # (N, 4, 4)
-        self._photos = photos
+        self._images = photos
         self._depths = depths if has_depth else None
         self.render_path = traj.render_path
 
@@ -173,18 +172,7 @@ class SceneNetSequence(Sequence):
         root = Path(root)
         return (root / "photo").is_dir() and (root / "depth").is_dir()
 
-    @property
-    def has_depth(self) -> bool:
-        return self._depths is not None
-
-    def frame(self, i: int, depth: bool = True) -> Frame:
-        i = frame_index(i, len(self))
-        image = read_rgb(self._photos[i])
-        depth_map, depth_path = None, None
-        if depth and self._depths is not None:
-            depth_path = self._depths[i]
-            depth_map = read_depth_png(depth_path, SCENENET_DEPTH_FACTOR)  # ray length, metres
-        check_frame_shapes(self._camera, image, depth_map, self._photos[i], depth_path)
-        if depth_map is not None:
-            depth_map = ray_length_to_z(depth_map, self._camera)
-        return Frame(float(self._stamps[i]), image, self._camera, depth_map, self._gt[i].clone(), i)
+    def _read_depth(self, path: Path) -> torch.Tensor:
+        ray = read_depth_png(path, SCENENET_DEPTH_FACTOR)  # each pixel's ray length, metres
+        check_depth_shape(self._camera, ray, path)  # before the conversion, which needs the camera's size
+        return ray_length_to_z(ray, self._camera)

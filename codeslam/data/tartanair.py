@@ -29,9 +29,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from codeslam.data.base import Sequence
-from codeslam.data.frame import Frame
-from codeslam.data.imageio import check_frame_shapes, frame_index, read_depth_npy, read_rgb
+from codeslam.data.base import ImageFileSequence
+from codeslam.data.imageio import read_depth_npy
 from codeslam.data.textfile import check_quaternion, data_lines, finite_floats
 from codeslam.data.trajectory import poses_from_tum_rows
 from codeslam.errors import DatasetError
@@ -70,7 +69,7 @@ def read_pose_file(path: Path) -> torch.Tensor:
     return poses_from_tum_rows(np.array(rows))
 
 
-class TartanAirSequence(Sequence):
+class TartanAirSequence(ImageFileSequence):
     """One TartanAir sequence, left camera (see the module docstring)."""
 
     format_name = "tartanair"
@@ -114,17 +113,5 @@ class TartanAirSequence(Sequence):
     def detect(root: Path) -> bool:
         return (Path(root) / "image_left").is_dir()
 
-    @property
-    def has_depth(self) -> bool:
-        return self._depths is not None
-
-    def frame(self, i: int, depth: bool = True) -> Frame:
-        i = frame_index(i, len(self))
-        image = read_rgb(self._images[i])
-        depth_map, depth_path = None, None
-        if depth and self._depths is not None:
-            depth_path = self._depths[i]
-            depth_map = read_depth_npy(depth_path)
-        check_frame_shapes(self._camera, image, depth_map, self._images[i], depth_path)
-        pose = None if self._gt is None else self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, depth_map, pose, i)
+    def _read_depth(self, path: Path) -> torch.Tensor:
+        return read_depth_npy(path)

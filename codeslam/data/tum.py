@@ -39,20 +39,8 @@ import numpy as np
 import torch
 
 from codeslam.data.association import associate
-from codeslam.data.base import Sequence
-from codeslam.data.frame import Frame
-from codeslam.data.imageio import (
-    check_depth_shape,
-    check_frame_shapes,
-    frame_index,
-    image_size,
-    read_depth_png,
-    read_rgb,
-    require_file,
-    resolve_in_root,
-    undistort_depth_map,
-    undistort_frame,
-)
+from codeslam.data.base import ImageFileSequence
+from codeslam.data.imageio import image_size, read_depth_png, require_file, resolve_in_root
 from codeslam.data.textfile import check_increasing, data_lines, finite_floats
 from codeslam.data.trajectory import read_tum
 from codeslam.errors import CodeSLAMError, DatasetError
@@ -121,7 +109,7 @@ def preset_for_folder(root: Path) -> str | None:
     return f"fr{m.group(1)}" if m else None
 
 
-class TumSequence(Sequence):
+class TumSequence(ImageFileSequence):
     """A TUM RGB-D sequence folder (see the module docstring for every choice made)."""
 
     format_name = "tum"
@@ -148,7 +136,7 @@ class TumSequence(Sequence):
         self.depth_factor = depth_factor
 
         # Depth: pair every colour frame with its nearest depth frame; drop colour frames without one.
-        self._depth_files: list[Path] | None = None
+        self._depths: list[Path] | None = None
         self.depth_timestamps: np.ndarray | None = None
         depth_txt = root / "depth.txt"
         if depth_txt.is_file():
@@ -166,10 +154,10 @@ class TumSequence(Sequence):
                 )
             stamps = stamps[ia]
             rgb_files = [rgb_files[i] for i in ia]
-            self._depth_files = [d_files[j] for j in ib]
+            self._depths = [d_files[j] for j in ib]
             self.depth_timestamps = d_stamps[ib]  # (N,) seconds of each frame's depth map
         self._stamps = stamps
-        self._rgb_files = rgb_files
+        self._images = rgb_files
 
         # Camera: explicit > calib.txt > preset from the folder name > ROS default.
         w, h = image_size(rgb_files[0])
@@ -203,39 +191,14 @@ class TumSequence(Sequence):
         return (Path(root) / "rgb.txt").is_file()
 
     @property
-    def has_depth(self) -> bool:
-        return self._depth_files is not None
-
-    @property
     def image_files(self) -> tuple[Path, ...]:
         """Each frame's colour image file, as associated (frames without a depth map left out)."""
-        return tuple(self._rgb_files)
+        return tuple(self._images)
 
     @property
     def depth_files(self) -> tuple[Path, ...] | None:
         """Each frame's depth map file, as associated with its colour image; None without depth."""
-        return None if self._depth_files is None else tuple(self._depth_files)
+        return None if self._depths is None else tuple(self._depths)
 
-    def frame(self, i: int, depth: bool = True) -> Frame:
-        i = frame_index(i, len(self))
-        image = read_rgb(self._rgb_files[i])
-        depth_map, depth_path = None, None
-        if depth and self._depth_files is not None:
-            depth_path = self._depth_files[i]
-            depth_map = read_depth_png(depth_path, self.depth_factor)
-        check_frame_shapes(self.source_camera, image, depth_map, self._rgb_files[i], depth_path)
-        valid = None
-        if self.undistort:
-            image, depth_map, valid = undistort_frame(self.source_camera, image, depth_map)
-        pose = None
-        if self._gt is not None and not bool(torch.isnan(self._gt[i]).any()):
-            pose = self._gt[i].clone()
-        return Frame(float(self._stamps[i]), image, self._camera, depth_map, pose, i, valid)
-
-    def depth(self, i: int) -> torch.Tensor | None:
-        i = frame_index(i, len(self))
-        if self._depth_files is None:
-            return None
-        depth = read_depth_png(self._depth_files[i], self.depth_factor)
-        check_depth_shape(self.source_camera, depth, self._depth_files[i])
-        return undistort_depth_map(self.source_camera, depth) if self.undistort else depth
+    def _read_depth(self, path: Path) -> torch.Tensor:
+        return read_depth_png(path, self.depth_factor)

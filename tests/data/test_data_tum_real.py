@@ -68,7 +68,7 @@ def test_tum_rpy_first_frame_raw_values(tum_rpy):
     rgb_name = (tum_rpy / "rgb.txt").read_text().splitlines()[3].split()[1]
     raw = np.asarray(Image.open(tum_rpy / rgb_name), dtype=np.float32) / 255.0
     np.testing.assert_array_equal(f.image.permute(1, 2, 0).numpy(), raw)
-    raw_d = np.asarray(Image.open(seq._depth_files[0]), dtype=np.float32) / 5000.0
+    raw_d = np.asarray(Image.open(seq.depth_files[0]), dtype=np.float32) / 5000.0
     np.testing.assert_allclose(f.depth.numpy(), raw_d, rtol=1e-6)
     # README: about 72% of the first frame's pixels have depth.
     assert 0.68 < float((f.depth > 0).float().mean()) < 0.76
