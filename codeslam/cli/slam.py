@@ -177,7 +177,7 @@ def run_to_folder(seq, indices: list[int], dataset: Path, out: Path, setup: Slam
     with progress_bar(label, len(indices), quiet) as update:
         def progress(done: int, total: int, result) -> None:
             nonlocal keyframes
-            keyframes += int(result.is_keyframe)
+            keyframes = (0 if done == 1 else keyframes) + int(result.is_keyframe)  # (a second pass starts at 1)
             update(done, f"{result.status}, {keyframes} keyframes")
 
         system = CodeSLAM(setup.cfg, setup.factory, parallel=setup.parallel, clock=StageClock(setup.cfg.device))
@@ -241,7 +241,9 @@ def _readout_text(rs: dict) -> str:
         else "global shutter"
     if rs["decided_at_frame"] is None:
         return f"{what} (provisional, from {rs['frames']} turning frames)"
-    return f"{what} (chosen at frame {rs['decided_at_frame']} from {rs['frames']} turning frames)"
+    again = (f"; the first {rs['restarted_after_frames']} frames processed again with it"
+             if rs.get("restarted_after_frames") else "")
+    return f"{what} (chosen at frame {rs['decided_at_frame']} from {rs['frames']} turning frames{again})"
 
 
 def _print_summary(s: dict, out: Path) -> None:

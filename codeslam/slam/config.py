@@ -124,12 +124,24 @@ class TrackerConfig:
     -> 0.023-0.028 m in three, 0.041 -> 0.045 m in one; as a landscape one 0.020-0.023 m). Costs seven alignments
     at the finest level for each of the first 10 informative frames, four after (one direction kept), none once
     chosen: on TUM 6.4 ms per frame averaged over the run at one thread (5.1 with positive candidates alone)."""
+    rolling_shutter_restart: int = 200
+    """With ``rolling_shutter_estimate``: when the choice is final within this many frames and some frame before it
+    was rectified by another readout (0 while the evidence gathers, then the best so far), the run starts over from
+    its first frame with every frame rectified by the chosen readout (:meth:`CodeSLAM.restart_with_readout`); 0:
+    never. Those frames were tracked and made keyframes under a readout the camera does not have, and the map keeps
+    them: TUM fr1/rpy's first 47 frames carried 2.25 deg RMSE of rotation error, the rest 1.08 deg. Measured
+    (docs/results/slam_table.md, fifty-fifth session; 1 thread, Zen 5): TUM fr1/rpy 0.0159 m, 1.46 deg -> 0.0092 m,
+    1.08 deg at 1.25 times the frames processed; runs that choose a global shutter, having rectified no frame,
+    unchanged to the byte."""
 
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)
         if self.feature_start_level != -1 and not 0 <= min(self.pyramid_levels) <= self.feature_start_level:
             raise ConfigError(f"tracker.feature_start_level must be -1 or a level no finer than the finest of "
                               f"pyramid_levels {self.pyramid_levels}, got {self.feature_start_level}")
+        if self.rolling_shutter_restart < 0:
+            raise ConfigError(f"tracker.rolling_shutter_restart must be >= 0 (0: never), got "
+                              f"{self.rolling_shutter_restart}")
         if not -1.0 <= self.rolling_shutter_readout <= 1.0:
             raise ConfigError("tracker.rolling_shutter_readout must lie in [-1, 1] (a signed fraction of the frame "
                               "interval), "

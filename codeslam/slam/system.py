@@ -219,6 +219,9 @@ class CodeSLAM:
                  camera: PinholeCamera | None = None, parallel: bool = False,
                  mapping_threads: int | None = None, alignment_threads: int | None = 1,
                  decode_threads: int | None = None, clock: Clock = NO_CLOCK) -> None:
+        # what restart_with_readout makes the system anew with
+        self._options = dict(parallel=parallel, mapping_threads=mapping_threads, alignment_threads=alignment_threads,
+                             decode_threads=decode_threads, clock=clock)
         self.config = config
         self.depth_model = depth_model
         self.device = torch.device(config.device)
@@ -269,6 +272,8 @@ class CodeSLAM:
             config.window.sfm) if tcfg.rolling_shutter_estimate else None
         self._turn: dict[int, tuple[torch.Tensor, float]] = {}  # estimating: keyframe id -> (its turn from the
         # frame before it, the readout it was rectified with)
+        self._readouts_used: set[float] = set()  # the readouts frames were rectified by so far
+        self._chosen: dict | None = None  # the online choice that made this system anew (restart_with_readout)
 
     @property
     def window(self) -> SlidingWindow:
@@ -324,6 +329,7 @@ class CodeSLAM:
 
     def _process(self, frame: Frame) -> FrameResult:
         self._check(frame)
+        self._readouts_used.add(self.readout)  # what the frame's views are rectified by (and a keyframe's)
         self._apply(self.mapper.collect())  # keyframes the mapping thread finished: track against the newest
         direct_first = self._direct_first()
         with self._aligning_threads():  # the frame's resampling and keypoints, as its alignment (alignment_threads)
@@ -1213,7 +1219,30 @@ class CodeSLAM:
 
     def readout_summary(self) -> dict | None:
         """The online choice of the rolling-shutter readout and its evidence; None when it is not estimated."""
-        return None if self.readout_choice is None else self.readout_choice.summary()
+        return self._chosen if self.readout_choice is None else self.readout_choice.summary()
+
+    @property
+    def readout_restart(self) -> float | None:
+        """The readout to process the frames so far again with (:meth:`restart_with_readout`), or None: the online
+        choice once it is final, when a frame was rectified by another readout before and no more frames than
+        ``tracker.rolling_shutter_restart`` have been processed."""
+        choice, limit = self.readout_choice, self.config.tracker.rolling_shutter_restart
+        if choice is None or not choice.final or len(self._records) > limit:
+            return None
+        return choice.value if self._readouts_used - {choice.value} else None
+
+    def restart_with_readout(self, readout: float) -> None:
+        """Start over with every frame rectified by ``readout`` (the online choice, now final;
+        ``tracker.rolling_shutter_restart``): the mapping thread stopped and the state made anew in place, so that a
+        caller's reference stays valid; the choice's evidence is kept for :meth:`readout_summary`. The caller feeds
+        the frames again from the first."""
+        chosen = dict(self.readout_summary(), restarted_after_frames=len(self._records))
+        self.close()
+        tracker = dataclasses.replace(self.config.tracker, rolling_shutter_estimate=False,
+                                      rolling_shutter_readout=readout)
+        self.__init__(dataclasses.replace(self.config, tracker=tracker), self.depth_model, camera=self.camera,
+                      **self._options)
+        self._chosen = chosen
 
     def tracking_failures(self) -> list[int]:
         """Indices of the frames whose pose is only predicted."""

@@ -7,9 +7,10 @@ import math
 
 import pytest
 import torch
-from slam_scene import rolling_shutter_frames, small_config
+from slam_scene import MemorySequence, rolling_shutter_frames, small_config
 
 from codeslam.slam.depth import standin_depth_model
+from codeslam.slam.pipeline import run_slam
 from codeslam.slam.readout import CANDIDATES, ReadoutChoice, choose
 from codeslam.slam.system import CodeSLAM
 
@@ -120,13 +121,15 @@ def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
     assert rolling.final and rolling.decided_at == 39
 
 
-def _choosing_system() -> CodeSLAM:
+def _choosing_system(**tracker) -> CodeSLAM:
     """A small system without keypoints that chooses the readout from 4 informative frames, finally after 8."""
     cfg = small_config(size=3)
-    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, rolling_shutter_estimate=True),
+    tracker = {"rolling_shutter_estimate": True} | tracker
+    cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, **tracker),
                               features=dataclasses.replace(cfg.features, enabled=False))
     system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
-    system.readout_choice = ReadoutChoice(frames=8, min_frames=4)
+    if system.readout_choice is not None:
+        system.readout_choice = ReadoutChoice(frames=8, min_frames=4)
     return system
 
 
@@ -179,3 +182,30 @@ def test_a_keyframes_depth_given_later_is_rectified_along_its_frames_axis():
     assert rectified and all(kf.readout_axis == "columns" for kf in system.keyframes)
     for kf in rectified:
         assert torch.equal(system.keyframe_depth(kf, frames[kf.frame_index].depth), kf.depth_gt)
+
+
+@pytest.mark.parametrize("readout", [0.5, 0.0])
+def test_a_run_starts_over_with_the_readout_once_it_is_chosen(readout):
+    """The frames before the choice was final were rectified by 0, then by provisional values: run_slam feeds every
+    frame again to the system made anew with the chosen readout, and the run is the one that readout set by hand
+    gives, pose for pose. A global shutter rectified no frame: no second pass. ``rolling_shutter_restart: 0``: none."""
+    frames = rolling_shutter_frames(readout, frames=12)
+    seq = MemorySequence(frames)
+    system = _choosing_system()
+    run = run_slam(seq, system, frames[0].camera)
+    chosen = system.readout_summary()
+    assert len(run.results) == len(frames) and chosen["decided_at_frame"] is not None
+    if not readout:  # decided as a global shutter, every frame rectified by 0 meanwhile
+        assert chosen["readout"] == 0.0 and "restarted_after_frames" not in chosen
+        return
+    value = chosen["readout"]
+    assert 0.35 <= value <= 0.65
+    assert chosen["restarted_after_frames"] == chosen["decided_at_frame"] + 1
+    assert system.readout == value and system.readout_choice is None and system.readout_restart is None
+    by_hand = _choosing_system(rolling_shutter_estimate=False, rolling_shutter_readout=value)
+    fixed = run_slam(MemorySequence(frames), by_hand, frames[0].camera)
+    assert torch.equal(run.trajectory.poses, fixed.trajectory.poses)
+    assert [r.status for r in run.results] == [r.status for r in fixed.results]
+    never = run_slam(MemorySequence(frames), _choosing_system(rolling_shutter_restart=0), frames[0].camera)
+    assert "restarted_after_frames" not in never.readout
+    assert not torch.equal(never.trajectory.poses, fixed.trajectory.poses)  # its first frames under other readouts
