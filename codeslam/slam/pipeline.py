@@ -112,11 +112,8 @@ def run_slam(
     every_depth = system.reads_frame_depth  # else the keyframes' depth only, read after the run
     try:
         with system.tracking_threads():  # parallel: this thread keeps to the tracker's share of the cores
-            restart: float | None = 0.0
-            while restart is not None:  # a second pass when the rolling-shutter readout is chosen after some frames
-                if results:
-                    system.restart_with_readout(restart)
-                    results = []
+            while True:  # a second pass when the rolling-shutter readout is chosen after some frames
+                restart: float | None = None
                 for n, (frame, read_ms) in enumerate(read_ahead(sequence, frames, depth=every_depth)):
                     t1 = time.perf_counter()
                     result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
@@ -129,6 +126,10 @@ def run_slam(
                         progress(n + 1, len(frames), result)
                     if restart is not None:
                         break
+                if restart is None:
+                    break
+                system.restart_with_readout(restart)
+                results = []
         t2 = time.perf_counter()
         system.finish()  # the mapping thread's last keyframe (parallel mode)
         process_s += time.perf_counter() - t2
