@@ -121,13 +121,13 @@ def test_a_global_shutter_is_final_as_soon_as_the_frames_settle_it():
     assert rolling.final and rolling.decided_at == 39
 
 
-def _choosing_system(**tracker) -> CodeSLAM:
+def _choosing_system(parallel: bool = False, **tracker) -> CodeSLAM:
     """A small system without keypoints that chooses the readout from 4 informative frames, finally after 8."""
     cfg = small_config(size=3)
     tracker = {"rolling_shutter_estimate": True} | tracker
     cfg = dataclasses.replace(cfg, tracker=dataclasses.replace(cfg.tracker, **tracker),
                               features=dataclasses.replace(cfg.features, enabled=False))
-    system = CodeSLAM(cfg, standin_depth_model(num_levels=3))
+    system = CodeSLAM(cfg, standin_depth_model(num_levels=3), parallel=parallel)
     if system.readout_choice is not None:
         system.readout_choice = ReadoutChoice(frames=8, min_frames=4)
     return system
@@ -214,10 +214,6 @@ def test_a_run_starts_over_with_the_readout_once_it_is_chosen(readout):
 def test_the_parallel_mode_does_not_start_over():
     """Its point is speed (a second pass cost TUM fr1/rpy 17.3 -> 14.5 frames/s): it keeps its first frames."""
     frames = rolling_shutter_frames(0.5, frames=12)
-    system = _choosing_system()
-    system.close()
-    parallel = CodeSLAM(system.config, system.depth_model, parallel=True)
-    parallel.readout_choice = ReadoutChoice(frames=8, min_frames=4)
-    run = run_slam(MemorySequence(frames), parallel, frames[0].camera)
+    run = run_slam(MemorySequence(frames), _choosing_system(parallel=True), frames[0].camera)
     assert run.readout["decided_at_frame"] is not None and run.readout["readout"] > 0.3
     assert "restarted_after_frames" not in run.readout and len(run.results) == len(frames)
