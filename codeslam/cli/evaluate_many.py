@@ -109,7 +109,7 @@ def evaluate_command(
     from rich.console import Console
 
     from codeslam.cli.common import open_frames, set_threads
-    from codeslam.cli.slam import ORACLE_DEPTH_MODELS, run_to_folder, setup_slam, video_options
+    from codeslam.cli.slam import ORACLE_DEPTH_MODELS, live_option, run_to_folder, setup_slam, video_options
     from codeslam.data.video import is_video_file
     from codeslam.io import atomic_write, check_output_dir, check_output_file
 
@@ -118,6 +118,7 @@ def evaluate_command(
     check_output_dir(out)
     for name in (RESULTS_MD, RESULTS_CSV):
         check_output_file(out / name)
+    live = live_option(o.realtime, o.speed)
     is_video = [o.fmt == "video" or (o.fmt is None and Path(d).is_file() and is_video_file(d)) for d in datasets]
     video_given = (("camera", o.camera), ("fov", o.fov), ("fps", o.fps), ("every", o.every))
     given = [f"--{k}" for k, v in video_given if v is not None]
@@ -138,12 +139,14 @@ def evaluate_command(
         if not o.quiet:
             console.print(f"[bold]{k}/{len(datasets)}[/bold] {name}: {len(indices)} frames of {d}")
         summaries.append(run_to_folder(seq, indices, d, out / name, setup, quiet=o.quiet,
-                                       label=f"slam {k}/{len(datasets)}"))
+                                       label=f"slam {k}/{len(datasets)}", live=live))
     rows = table_rows(names, summaries)
     settings = (f"Settings of every run: depth model {setup.model_info.get('depth_model')}"
                 + (f", weights {setup.model_info['weights']}" if "weights" in setup.model_info else "")
                 + f", config {o.config or 'default'}, device {setup.cfg.device}, {setup.model_info['mapping']} "
-                "mapping" + (f", frames {o.frames}" if o.frames else "") + ".")
+                "mapping" + (f", frames {o.frames}" if o.frames else "")
+                + ("" if live is None else f", live at {live.speed:g} times the recordings' rate (--realtime: frames "
+                   "that came while the system was busy skipped; 'frames' counts those processed)") + ".")
     with atomic_write(out / RESULTS_CSV) as f:
         f.write(results_csv(rows))
     with atomic_write(out / RESULTS_MD) as f:

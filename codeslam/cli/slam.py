@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -30,6 +31,12 @@ MappingMode = Annotated[bool, typer.Option(
     "--sequential/--parallel", help="Map inline after each keyframe's tracking (deterministic, for tests and "
     "debugging) or on a thread beside the tracking (PTAM-like; tracking waits only when its keyframe leaves the "
     "view).")]
+Realtime = Annotated[bool, typer.Option(
+    "--realtime", help="Run as a live camera feeds the system: the frames arrive at the recording's own times (its "
+    "timestamps) and a frame that arrives while the system is busy with an earlier one is skipped (DSO's realtime "
+    "mode); the summary counts the frames skipped. Every frame is processed once (no rolling-shutter restart).")]
+Speed = Annotated[float | None, typer.Option(
+    "--speed", help="--realtime: play the recording this many times faster (0.5: at half its rate; default 1).")]
 StandinSize = Annotated[str, typer.Option(
     "--size", help="--depth-model standin: the camera's WIDTHxHEIGHT (the network uses its own canonical camera).")]
 
@@ -57,6 +64,8 @@ class RunOptions:
     threads: int | None = None
     size: str = "128x96"
     sequential: bool = True
+    realtime: bool = False
+    speed: float | None = None
     camera: Path | None = None
     fov: float | None = None
     fps: float | None = None
@@ -68,7 +77,8 @@ class RunOptions:
 _RUN_OPTION_TYPES = (
     ("fmt", Format), ("frames", Frames), ("weights", Weights), ("config", SlamConfigFile), ("device", Device),
     ("depth_model", DepthModelName), ("threads", Threads), ("size", StandinSize), ("sequential", MappingMode),
-    ("camera", VideoCamera), ("fov", VideoFov), ("fps", VideoFps), ("every", VideoEvery), ("quiet", Quiet),
+    ("realtime", Realtime), ("speed", Speed), ("camera", VideoCamera), ("fov", VideoFov), ("fps", VideoFps),
+    ("every", VideoEvery), ("quiet", Quiet),
 )
 
 
@@ -142,6 +152,21 @@ def setup_slam(config: Path | None, weights: Path | None, device: str | None, de
                      not sequential)
 
 
+def live_option(realtime: bool, speed: float | None):
+    """The live run of ``--realtime`` (:class:`~codeslam.slam.pipeline.Live`, at ``--speed``), or None offline;
+    ConfigError for a speed without ``--realtime`` or one that is not positive."""
+    if speed is not None and not realtime:
+        raise ConfigError("--speed applies to a --realtime run only")
+    if not realtime:
+        return None
+    from codeslam.slam.pipeline import Live
+
+    speed = 1.0 if speed is None else speed
+    if not (math.isfinite(speed) and speed > 0):
+        raise ConfigError(f"--speed must be a positive number, got {speed}")
+    return Live(speed)
+
+
 def video_options(dataset: Path, fmt: str | None, camera: Path | None, fov: float | None, fps: float | None,
                   every: int | None) -> dict:
     """The video reader's options for ``dataset`` ({} for a dataset folder); ConfigError when one is given for a
@@ -158,10 +183,10 @@ def video_options(dataset: Path, fmt: str | None, camera: Path | None, fov: floa
 
 
 def run_to_folder(seq, indices: list[int], dataset: Path, out: Path, setup: SlamSetup, viewer: str = "none",
-                  quiet: bool = False, label: str = "slam") -> dict:
+                  quiet: bool = False, label: str = "slam", live=None) -> dict:
     """Run SLAM on ``indices`` of ``seq`` and write the run folder ``out``: the runner's files, with ground truth
     the evaluation, its plot and the ground truth of the processed frames, then ``report.html``. Returns the
-    summary (as in result.json)."""
+    summary (as in result.json). ``live``: a live run (:func:`live_option`), None offline."""
     from codeslam.cli.common import progress_bar
     from codeslam.clock import StageClock
     from codeslam.eval.slam_run import evaluate_run_if_possible, plot_run
@@ -181,8 +206,8 @@ def run_to_folder(seq, indices: list[int], dataset: Path, out: Path, setup: Slam
             update(done, f"{result.status}, {keyframes} keyframes")
 
         system = CodeSLAM(setup.cfg, setup.factory, parallel=setup.parallel, clock=StageClock(setup.cfg.device))
-        run = run_slam(seq, system, setup.camera, indices, make_visualizer(viewer), progress)
-    gt = ground_truth(seq, indices)
+        run = run_slam(seq, system, setup.camera, indices, make_visualizer(viewer), progress, live=live)
+    gt = ground_truth(seq, [r.index for r in run.results] if live is not None else indices)
     evaluation = evaluate_run_if_possible(run.trajectory, gt)
     source = seq.describe() if hasattr(seq, "describe") else {}  # a video: its rate and how the camera was found
     summary = summarise(run, evaluation, dataset=str(dataset), format=seq.format_name, device=setup.cfg.device,
@@ -222,11 +247,12 @@ def slam_command(
     o = opts
     set_threads(o.threads)
     check_outputs(out, json_out)  # refuse bad output paths before any work
+    live = live_option(o.realtime, o.speed)
     options = video_options(dataset, o.fmt, o.camera, o.fov, o.fps, o.every)
     setup = setup_slam(o.config, o.weights, o.device, o.depth_model, o.size, o.sequential)
     seq, indices = open_frames(dataset, o.fmt, o.frames, min_frames=2, what="SLAM", increasing=True,
                                options=options)
-    summary = run_to_folder(seq, indices, dataset, out, setup, viewer, o.quiet)
+    summary = run_to_folder(seq, indices, dataset, out, setup, viewer, o.quiet, live=live)
     _print_summary(summary, out)
     if json_out is not None:
         write_json(json_out, summary)
@@ -251,7 +277,7 @@ def _print_summary(s: dict, out: Path) -> None:
     from rich.markup import escape
     from rich.table import Table
 
-    from codeslam.report.run import map_scale_text, mapping_text, trajectory_text
+    from codeslam.report.run import live_text, map_scale_text, mapping_text, trajectory_text
 
     table = Table(title=escape(f"codeslam slam -> {out}"), show_header=False)
     table.add_column("key", style="bold")
@@ -266,6 +292,8 @@ def _print_summary(s: dict, out: Path) -> None:
     if s.get("segments", 1) > 1:  # tracking was lost long enough to start again
         merged = len(s.get("segment_merges", []))
         rows.append(("map segments", f"{s['segments']} ({merged} merged into an older map)"))
+    if (live := live_text(s)) is not None:  # --realtime
+        rows.append(("live", live))
     if "camera" in s:  # a video: the calibration file, or the field-of-view guess
         rows.append(("camera", str(s["camera"])))
     rs = s.get("rolling_shutter")

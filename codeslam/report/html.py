@@ -15,6 +15,7 @@ from codeslam.report.run import (
     REPORT_FILE,
     RunFiles,
     frame_statuses,
+    live_text,
     load_run,
     map_scale_text,
     mapping_text,
@@ -97,6 +98,8 @@ def run_info_rows(run: RunFiles) -> list[tuple[str, str]]:
         rows.append(("device", str(s["device"])))
     if "settings" in s:
         rows.append(("settings", str(s["settings"])))
+    if (live := live_text(s)) is not None:
+        rows.append(("live", live))
     if (mapping := mapping_text(s)) is not None:
         rows.append(("mapping", mapping))
     if (scale := map_scale_text(s)) is not None:

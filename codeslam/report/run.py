@@ -193,6 +193,17 @@ def mapping_text(summary: dict) -> str | None:
     return text
 
 
+def live_text(summary: dict) -> str | None:
+    """The summary's line on a live run (``result.json``'s ``live``, ``codeslam slam --realtime``): how many of the
+    frames that came were processed and how many skipped while the system was busy; None for an offline run."""
+    live = summary.get("live")
+    if not isinstance(live, dict):
+        return None
+    speed = "" if live["speed"] == 1 else f" ({live['speed']:g} times the recording's rate)"
+    return (f"{live['frames_processed']} of {live['frames_offered']} frames processed, {live['frames_skipped']} "
+            f"skipped while the system was busy; they came at {live['offered_fps']:.1f} frames/s{speed}")
+
+
 #: A map whose keyframes end outside this range of the network's zero-code depth gets the summary's hint.
 MAP_SCALE_HINT = (0.67, 1.5)
 

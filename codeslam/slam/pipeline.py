@@ -17,6 +17,10 @@ Outputs of :func:`write_outputs` (all written atomically):
 * ``result.json``: counts, timings, frames per second and, with ground truth, the metrics;
 * ``config.yaml``: the resolved configuration; with ground truth the caller adds ``trajectory.png`` (the aligned
   trajectory, :func:`codeslam.eval.slam_run.plot_run`).
+
+A run is offline by default (every frame, however long each takes) or live (:class:`Live`, ``codeslam slam
+--realtime``): the frames arrive at the recording's own times and a frame that arrives while the system is still
+busy with an earlier one is skipped, as a camera's frames are when the system falls behind (DSO's realtime mode).
 """
 
 from __future__ import annotations
@@ -67,6 +71,8 @@ class SLAMRun:
         keyframe_tracking: per keyframe, the keyframe it was tracked against and the tracked pose in it
             (:meth:`~codeslam.slam.system.CodeSLAM.keyframe_tracking`).
         merges: the map segments moved into an older map (:class:`~codeslam.slam.segments.SegmentMerge`).
+        live: for a live run (:class:`Live`), the frames offered and skipped and the rate they came at; None
+            offline.
     """
 
     results: list[FrameResult]
@@ -81,6 +87,7 @@ class SLAMRun:
     trajectory_smoothing: float = 0.0
     keyframe_tracking: list[tuple[int, torch.Tensor | None]] = field(default_factory=list)
     merges: list[SegmentMerge] = field(default_factory=list)
+    live: dict | None = None
 
     @property
     def fps(self) -> float:
@@ -95,12 +102,23 @@ def run_slam(
     frames: list[int] | range | None = None,
     visualizer: Visualizer | None = None,
     progress: Callable[[int, int, FrameResult], None] | None = None,
+    live: Live | None = None,
 ) -> SLAMRun:
     """Run ``system`` over the frame indices ``frames`` of ``sequence`` (all when None), in the order given, each
     frame resampled to ``camera``. ``progress(done, total, result)`` is called after every frame. When the system
     never reads the frames' depth (the network's depth model, :attr:`CodeSLAM.reads_frame_depth`) the frames are
-    read without it and the keyframes get theirs after the run (:func:`read_keyframe_depths`)."""
+    read without it and the keyframes get theirs after the run (:func:`read_keyframe_depths`).
+
+    With ``live`` the frames arrive at the recording's times (:func:`live_frames`): those that come while the
+    system is busy are skipped, the system is told the recording's frame period (:attr:`CodeSLAM.frame_period`:
+    the frames it gets are unevenly spaced) and no frame is processed twice (a live camera's frames cannot be fed
+    again: no rolling-shutter restart, :meth:`CodeSLAM.restart_with_readout`)."""
     frames = range(len(sequence)) if frames is None else frames
+    if live is not None:
+        frames = list(frames)
+        position = {f: k for k, f in enumerate(frames)}
+        if system.frame_period is None:
+            system.frame_period = frame_period(sequence.timestamps[frames])
     if system.camera is None:
         system.camera = camera
     elif system.camera != camera:
@@ -114,16 +132,18 @@ def run_slam(
         with system.tracking_threads():  # parallel: this thread keeps to the tracker's share of the cores
             while True:  # a second pass when the rolling-shutter readout is chosen after some frames
                 restart: float | None = None
-                for n, (frame, read_ms) in enumerate(read_ahead(sequence, frames, depth=every_depth)):
+                feed = (read_ahead(sequence, frames, depth=every_depth) if live is None
+                        else live_frames(sequence, frames, live, depth=every_depth))
+                for n, (frame, read_ms) in enumerate(feed):
                     t1 = time.perf_counter()
                     result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
-                    restart = system.readout_restart
+                    restart = system.readout_restart if live is None else None
                     process_s += time.perf_counter() - t1
                     result.timings_ms["read"] = read_ms
                     results.append(result)
                     visualizer.update(frame, result, system)
-                    if progress is not None:
-                        progress(n + 1, len(frames), result)
+                    if progress is not None:  # live: how far through the recording (frames skipped count)
+                        progress(n + 1 if live is None else position[frame.index] + 1, len(frames), result)
                     if restart is not None:
                         break
                 if restart is None:
@@ -149,7 +169,78 @@ def run_slam(
         wall_s=time.perf_counter() - t_start, readout=system.readout_summary(),
         trajectory_smoothing=float(system.config.trajectory_smoothing), keyframe_tracking=system.keyframe_tracking(),
         merges=list(system.merges),
+        live=None if live is None else live.summary(sequence.timestamps[list(frames)], [r.index for r in results]),
     )
+
+
+@dataclass(frozen=True)
+class Live:
+    """How a live run's frames arrive (:func:`live_frames`): frame k at ``(t_k - t_0) / speed`` seconds after the
+    run starts, ``t`` the recording's timestamps; ``clock`` and ``sleep`` are the stopwatch and the wait (seconds;
+    a test passes its own)."""
+
+    speed: float = 1.0
+    clock: Callable[[], float] = time.perf_counter
+    sleep: Callable[[float], None] = time.sleep
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.speed) and self.speed > 0):
+            raise CodeSLAMError(f"a live run's speed must be a positive number, got {self.speed}")
+
+    def summary(self, stamps: np.ndarray, processed: list[int]) -> dict:
+        """What a live run over frames at ``stamps`` (seconds) did, having processed the frames ``processed``."""
+        span = float(stamps[-1] - stamps[0]) / self.speed if len(stamps) > 1 else 0.0
+        return {"speed": self.speed, "frames_offered": int(len(stamps)), "frames_processed": len(processed),
+                "frames_skipped": int(len(stamps)) - len(processed), "duration_s": span,
+                "offered_fps": (len(stamps) - 1) / span if span > 0 else math.inf}
+
+
+def frame_period(stamps: np.ndarray) -> float | None:
+    """The median interval (s) of increasing timestamps: a camera's frame period; None for fewer than two frames or
+    intervals that are not positive."""
+    steps = np.diff(np.asarray(stamps, dtype=np.float64))
+    if len(steps) == 0 or not np.all(np.isfinite(steps)):
+        return None
+    period = float(np.median(steps))
+    return period if period > 0 else None
+
+
+def live_schedule(stamps: np.ndarray, taken: int, now: float, speed: float) -> tuple[int, float]:
+    """The frame a live run takes next: ``stamps`` (N,) the offered frames' timestamps, ``taken`` the position of
+    the last frame taken (-1 before the first), ``now`` the seconds since the run started. Frame k arrives at
+    ``(stamps[k] - stamps[0]) / speed``; the newest frame that has arrived after the last one taken is taken (those
+    between are skipped), or, when none has, the next one once it arrives. Returns (its position, the seconds to
+    wait for it); the position is N when every frame has been offered."""
+    nxt = taken + 1
+    if nxt >= len(stamps):
+        return len(stamps), 0.0
+    arrival = (np.asarray(stamps[nxt:], dtype=np.float64) - float(stamps[0])) / speed
+    come = int(np.searchsorted(arrival, now, side="right"))  # frames nxt .. nxt + come - 1 have arrived
+    if come == 0:
+        return nxt, float(arrival[0]) - now
+    return nxt + come - 1, 0.0
+
+
+def live_frames(sequence: Sequence, frames: list[int] | range, live: Live,
+                depth: bool = True) -> Iterator[tuple[Frame, float]]:
+    """The frames ``frames`` of ``sequence`` as a live camera delivers them to a system that asks for the next one
+    when it is done with the last (:func:`live_schedule`, on ``live``'s clock from the first request): each with
+    the ms the caller waited for it (for its arrival and its reading). A frame is read (decoded, undistorted) when
+    it is taken, so its reading counts against the system, as a camera driver's decoding does; skipped frames are
+    never read."""
+    frames = list(frames)
+    stamps = np.asarray(sequence.timestamps, dtype=np.float64)[frames] if frames else np.zeros(0)
+    start = live.clock()
+    taken = -1
+    while True:
+        t0 = live.clock()
+        taken, wait = live_schedule(stamps, taken, t0 - start, live.speed)
+        if taken >= len(frames):
+            return
+        if wait > 0:
+            live.sleep(wait)
+        frame = sequence.frame(frames[taken], depth)
+        yield frame, 1e3 * (live.clock() - t0)
 
 
 def read_ahead(sequence: Sequence, frames: list[int] | range, depth: bool = True) -> Iterator[tuple[Frame, float]]:
@@ -240,6 +331,8 @@ def summarise(run: SLAMRun, evaluation: dict | None = None, **extra) -> dict:
     }
     if run.readout is not None:
         out["rolling_shutter"] = run.readout
+    if run.live is not None:
+        out["live"] = run.live
     out["trajectory_smoothing_s"] = run.trajectory_smoothing
     if evaluation is not None:
         out.update(evaluation)

@@ -213,6 +213,10 @@ class CodeSLAM:
     clock: the runner's stopwatch (:mod:`codeslam.clock`): it times each frame's stages (resample, features,
     track, relocalise, readout, decode) on the tracking thread, and a fork of it the mapping steps' (decode,
     marginalise, window), which :attr:`FrameResult.timings_ms` reports; the default times nothing.
+
+    frame_period: the camera's frame period in seconds where the caller knows it (a live run, whose frames come
+    unevenly spaced as the system skips some: :func:`codeslam.slam.pipeline.live_frames`); None (the default):
+    the median interval of the last frames processed, which is the period wherever few frames are missing.
     """
 
     def __init__(self, config: SLAMConfig, depth_model: DepthModelFactory,
@@ -251,6 +255,7 @@ class CodeSLAM:
         self.merges: list[SegmentMerge] = []
         self._merge_seen: tuple[int, torch.Tensor, int] | None = None  # the last match: (map, G, keyframe)
         self._records: list[_FrameRecord] = []
+        self.frame_period: float | None = None  # see the class docstring
         self._results: list[FrameResult] = []  # what process() returned, completed when mapping finishes
         self._keyframe_record: dict[int, int] = {}  # keyframe id -> position of its frame's record
         self._matches: FrameMatches | None = None  # the last frame's keypoints matched to the reference
@@ -888,10 +893,15 @@ class CodeSLAM:
     def _periods(self, dt: float) -> float:
         """Frame periods in ``dt`` s, rounded to whole ones and at least 1: a camera's frames come at its rate, a
         dropped frame makes one interval two, and the timestamps' own jitter (TUM fr1/rpy: 29-39 ms at 30 frames/s)
-        is left out, so evenly timed frames count 1 each as before. The period is the median interval of the last
-        :data:`PERIOD_FRAMES` frames; NaN before there are two frames or without usable times."""
+        is left out, so evenly timed frames count 1 each as before. The period is :attr:`frame_period` where it is
+        known, else the median interval of the last :data:`PERIOD_FRAMES` frames; NaN before there are two frames
+        or without usable times."""
+        if not math.isfinite(dt) or not dt > 0:
+            return math.nan
+        if self.frame_period is not None:
+            return float(max(1, round(dt / self.frame_period)))
         t = [r.timestamp for r in self._records[-PERIOD_FRAMES:]]
-        if len(t) < 2 or not math.isfinite(dt) or not dt > 0:
+        if len(t) < 2:
             return math.nan
         # statistics, not NumPy: 29 numbers, two to four times a frame (26 -> 2 us a call, the same median)
         return float(max(1, round(dt / statistics.median(b - a for a, b in zip(t, t[1:])))))
@@ -1240,9 +1250,10 @@ class CodeSLAM:
         self.close()
         tracker = dataclasses.replace(self.config.tracker, rolling_shutter_estimate=False,
                                       rolling_shutter_readout=readout)
+        period = self.frame_period
         self.__init__(dataclasses.replace(self.config, tracker=tracker), self.depth_model, camera=self.camera,
                       **self._options)
-        self._chosen = chosen
+        self._chosen, self.frame_period = chosen, period
 
     def tracking_failures(self) -> list[int]:
         """Indices of the frames whose pose is only predicted."""
