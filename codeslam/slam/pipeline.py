@@ -134,18 +134,22 @@ def run_slam(
                 restart: float | None = None
                 feed = (read_ahead(sequence, frames, depth=every_depth) if live is None
                         else live_frames(sequence, frames, live, depth=every_depth))
-                for n, (frame, read_ms) in enumerate(feed):
-                    t1 = time.perf_counter()
-                    result = system.process(frame)  # resamples to the system's camera itself (its "resample" stage)
-                    restart = system.readout_restart if live is None else None
-                    process_s += time.perf_counter() - t1
-                    result.timings_ms["read"] = read_ms
-                    results.append(result)
-                    visualizer.update(frame, result, system)
-                    if progress is not None:  # live: how far through the recording (frames skipped count)
-                        progress(n + 1 if live is None else position[frame.index] + 1, len(frames), result)
-                    if restart is not None:
-                        break
+                try:  # closed at once on a break or an error: no reading thread outlives its pass
+                    for n, (frame, read_ms) in enumerate(feed):
+                        t1 = time.perf_counter()
+                        result = system.process(frame)  # resamples to the system's camera (its "resample" stage)
+                        restart = system.readout_restart if live is None else None
+                        process_s += time.perf_counter() - t1
+                        result.timings_ms["read"] = read_ms
+                        results.append(result)
+                        visualizer.update(frame, result, system)
+                        if progress is not None:  # live: how far through the recording (skipped frames count)
+                            done = n + 1 if live is None else position.get(frame.index, n) + 1
+                            progress(done, len(frames), result)
+                        if restart is not None:
+                            break
+                finally:
+                    feed.close()
                 if restart is None:
                     break
                 system.restart_with_readout(restart)
@@ -230,6 +234,8 @@ def live_frames(sequence: Sequence, frames: list[int] | range, live: Live,
     never read."""
     frames = list(frames)
     stamps = np.asarray(sequence.timestamps, dtype=np.float64)[frames] if frames else np.zeros(0)
+    if not np.all(np.diff(stamps) >= 0):  # a camera's frames come in time order (NaN times fail too)
+        raise CodeSLAMError("a live run needs its frames in time order, with finite timestamps")
     start = live.clock()
     taken = -1
     while True:

@@ -86,6 +86,14 @@ def test_a_fast_system_gets_every_frame_and_waits_for_each():
     assert clock.now == pytest.approx(100.0 + 0.2 + 0.01)
 
 
+def test_frames_out_of_time_order_cannot_come_live():
+    seq = _Reads(_ten_hertz(4))
+    clock = FakeClock()
+    with pytest.raises(CodeSLAMError, match="time order"):
+        next(live_frames(seq, [2, 1, 3], Live(1.0, clock, clock.sleep)))
+    assert seq.reads == []
+
+
 def test_a_live_speed_must_be_positive():
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(CodeSLAMError, match="speed"):

@@ -131,3 +131,18 @@ def test_frames_come_without_depth_to_a_model_that_never_reads_it_and_keyframes_
         assert a.depth_gt is not None and a.depth_gt.shape == (48, 64)
         assert torch.equal(a.depth_gt, b.depth_gt)  # the same map as from frames read with their depth
         assert torch.equal(a.T_wc, b.T_wc)
+
+
+def test_an_error_in_the_system_leaves_no_reading_thread_while_its_traceback_is_held():
+    # the frame read ahead is cancelled and its thread joined when the run fails, not when the failed run's frames
+    # (which a held traceback keeps) are collected
+    class Boom(Exception):
+        pass
+
+    def failing_model(frame):
+        raise Boom("the depth model failed")
+
+    seq = _Recording(preset_frames(3, 6, "walk", 10.0, width=32, height=24))
+    with pytest.raises(Boom) as held:
+        run_slam(seq, CodeSLAM(small_config(size=3), failing_model), canonical_camera(32, 24))
+    assert held.value is not None and _reading_threads() == []
