@@ -117,8 +117,9 @@ def run_slam(
     if live is not None:
         frames = list(frames)
         position = {f: k for k, f in enumerate(frames)}
+        stamps = np.asarray(sequence.timestamps, dtype=np.float64)[frames]
         if system.frame_period is None:
-            system.frame_period = frame_period(sequence.timestamps[frames])
+            system.frame_period = frame_period(stamps)
     if system.camera is None:
         system.camera = camera
     elif system.camera != camera:
@@ -173,7 +174,7 @@ def run_slam(
         wall_s=time.perf_counter() - t_start, readout=system.readout_summary(),
         trajectory_smoothing=float(system.config.trajectory_smoothing), keyframe_tracking=system.keyframe_tracking(),
         merges=list(system.merges),
-        live=None if live is None else live.summary(sequence.timestamps[list(frames)], [r.index for r in results]),
+        live=None if live is None else live.summary(stamps, len(results)),
     )
 
 
@@ -191,11 +192,11 @@ class Live:
         if not (math.isfinite(self.speed) and self.speed > 0):
             raise CodeSLAMError(f"a live run's speed must be a positive number, got {self.speed}")
 
-    def summary(self, stamps: np.ndarray, processed: list[int]) -> dict:
-        """What a live run over frames at ``stamps`` (seconds) did, having processed the frames ``processed``."""
+    def summary(self, stamps: np.ndarray, processed: int) -> dict:
+        """What a live run over frames at ``stamps`` (seconds) did, having processed ``processed`` of them."""
         span = float(stamps[-1] - stamps[0]) / self.speed if len(stamps) > 1 else 0.0
-        return {"speed": self.speed, "frames_offered": int(len(stamps)), "frames_processed": len(processed),
-                "frames_skipped": int(len(stamps)) - len(processed), "duration_s": span,
+        return {"speed": self.speed, "frames_offered": int(len(stamps)), "frames_processed": processed,
+                "frames_skipped": int(len(stamps)) - processed, "duration_s": span,
                 "offered_fps": (len(stamps) - 1) / span if span > 0 else math.inf}
 
 
