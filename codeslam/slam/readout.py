@@ -31,6 +31,7 @@ non-keyframes fell by 13% on TUM fr1/rpy (19% with the sensor's depth) and rose 
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass, field
 
 import torch
@@ -48,13 +49,19 @@ shutter, 0.0382 m and 5.98 deg off against 0.0117 m and 1.34 deg upright."""
 class ReadoutChoice:
     """Accumulates the evidence of informative frames: a provisional readout from ``min_frames`` of them on
     (updated with every further one), final after ``frames``, or once a global shutter is settled (``confidence``
-    standard errors, module docstring). A camera reads its rows one way: at ``min_frames`` the direction whose best
-    candidate fits better is kept (``side``) and only its candidates are weighed after that, which saves three of
-    the seven alignments of each later frame (about 5 ms each on TUM fr1/rpy at one thread).
+    standard errors, module docstring). A camera reads its rows one way: from ``min_frames`` on, once the best
+    candidate of one direction fits better than the other direction's best by ``confidence`` standard errors of
+    their per-frame difference, that direction is kept (``side``) and only its candidates are weighed after that,
+    which saves three of the seven alignments of each later frame (about 5 ms each on TUM fr1/rpy at one thread).
+    The direction waits for that evidence: kept on the best candidate's mean alone at the tenth frame, TUM fr1/rpy
+    started at frame 15 kept the bottom-up side on a mean log ratio of 0.019 against the top-down side's 0.021
+    (frames 18, 20 and 21, where the turn slows down and picks up again, fit worse rectified either way), then
+    settled as a global shutter on its three candidates at frame 30: 3.67 deg of rotation error, against 1.22 deg
+    with the readout set to 0.75 (docs/results/slam_table.md, fifty-eighth session).
 
     value: None before ``min_frames`` informative frames, then the readout chosen so far (0.0: a global shutter);
-    decided_at: the index of the frame that made it final; side: 0 before ``min_frames``, then +1 (rows read top
-    down) or -1 (bottom up)."""
+    decided_at: the index of the frame that made it final; side: 0 while both directions are weighed, then +1
+    (rows read top down) or -1 (bottom up); ratios: each frame's log ratio per candidate (NaN: not weighed)."""
 
     frames: int = 40
     min_frames: int = 10
@@ -64,6 +71,7 @@ class ReadoutChoice:
     log_ratio: list[float] = field(default_factory=lambda: [0.0] * len(CANDIDATES))
     log_ratio_sq: list[float] = field(default_factory=lambda: [0.0] * len(CANDIDATES))
     count: list[int] = field(default_factory=lambda: [0] * len(CANDIDATES))
+    ratios: list[tuple[float, ...]] = field(default_factory=list)
     seen: int = 0
     side: int = 0
     value: float | None = None
@@ -107,19 +115,39 @@ class ReadoutChoice:
         r = [residuals.get(c, math.nan) for c in self.candidates]
         if self.final or not (base > 0 and all(x > 0 and math.isfinite(x) for x in r)):
             return  # an alignment without overlap says nothing
+        frame = [math.nan] * len(CANDIDATES)
         for c, x in zip(self.candidates, r):
             i, y = CANDIDATES.index(c), math.log(x / base)
             self.log_ratio[i] += y
             self.log_ratio_sq[i] += y * y
             self.count[i] += 1
+            frame[i] = y
+        self.ratios.append(tuple(frame))
         self.seen += 1
         if self.seen >= min(self.min_frames, self.frames):
-            if self.side == 0:  # the direction of the best candidate so far
-                means = self.means()
-                self.side = 1 if min(means, key=means.__getitem__) > 0 else -1
+            if self.side == 0:
+                self.side = self.direction()
             self.value = choose({c: m for c, m in self.means().items() if c in self.candidates}, self.margin)
         if self.final:  # settled as a global shutter implies value 0.0: every mean lies above -margin
             self.decided_at = index
+
+    def direction(self) -> int:
+        """+1 (rows read top down) or -1 (bottom up) when the best candidate of that direction fits better than the
+        other direction's best by ``confidence`` standard errors of the mean of their per-frame difference (sample
+        spread, over the frames that weighed both); 0 while the frames cannot tell them apart."""
+        means = self.means()
+        top = min((c for c in means if c > 0), key=means.__getitem__, default=None)
+        bottom = min((c for c in means if c < 0), key=means.__getitem__, default=None)
+        if top is None or bottom is None:
+            return 0
+        i, j = CANDIDATES.index(top), CANDIDATES.index(bottom)
+        d = [f[i] - f[j] for f in self.ratios if not (math.isnan(f[i]) or math.isnan(f[j]))]
+        if len(d) < 2:
+            return 0
+        mean = statistics.fmean(d)
+        if mean == 0.0 or abs(mean) <= self.confidence * statistics.stdev(d) / math.sqrt(len(d)):
+            return 0
+        return 1 if mean < 0 else -1
 
     def summary(self) -> dict:
         """What was decided and on what evidence (mean log residual ratio per candidate over the frames it was

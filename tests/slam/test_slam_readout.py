@@ -80,6 +80,25 @@ def test_after_min_frames_only_the_direction_that_fits_better_is_weighed():
     assert mirrored.side == 1 and math.isclose(mirrored.value, -choice.value)
 
 
+def test_both_directions_are_weighed_until_the_frames_tell_them_apart():
+    # TUM fr1/rpy started at frame 15 (fifty-eighth session): over the first ten frames the top-down candidates
+    # fit better or worse frame by frame, the bottom-up ones a little worse throughout, and the two sides' best
+    # means differ by little. Kept on that, the bottom-up side then settled as a global shutter.
+    def early(k: int, c: float) -> float:
+        return (1.2 if k % 2 else -1.0) * c if c > 0 else 0.08 * abs(c) * (1.5 if k % 2 else 0.5)
+
+    choice = ReadoutChoice(frames=40, min_frames=10, margin=0.03)
+    for k in range(10):
+        choice.add(1.0, at(lambda c, k=k: math.exp(early(k, c))), k)
+    means = choice.means()
+    assert means[-0.25] < means[0.25]  # the bottom-up side's best leads on its mean alone (0.020 against 0.025)
+    assert choice.side == 0 and choice.candidates == CANDIDATES and not choice.final
+    # then frames where the camera turns fast: the top-down readouts fit clearly better, and that side is kept
+    for k in range(10, 30):
+        choice.add(1.0, at(lambda c: math.exp(-0.8 * c if c > 0 else 0.4 * abs(c))), k)
+    assert choice.side == 1 and choice.candidates == (0.25, 0.5, 0.75) and choice.value > 0.5 and not choice.final
+
+
 def test_a_provisional_choice_is_updated_until_the_choice_is_final():
     choice = ReadoutChoice(frames=4, min_frames=2, margin=0.03)
     turn = torch.tensor([0.0, 0.05, 0.0], dtype=torch.float64)
