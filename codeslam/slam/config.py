@@ -132,9 +132,12 @@ class TrackerConfig:
     them: TUM fr1/rpy's first 47 frames carried 2.25 deg RMSE of rotation error, the rest 1.08 deg. Measured
     (docs/results/slam_table.md, fifty-fifth session; 1 thread, Zen 5): TUM fr1/rpy 0.0159 m, 1.46 deg -> 0.0092 m,
     1.08 deg at 1.25 times the frames processed; runs that choose a global shutter, having rectified no frame,
-    unchanged to the byte; with the dataset's depth (``--depth-model standin``) TUM 0.0129 -> 0.0214 m. Sequential
-    mapping only: the parallel mode, whose point is speed, went from 17.3 to 14.5 frames/s whole process on TUM and
-    from 0.013 to 0.018-0.021 m (2 threads, Zen 5)."""
+    unchanged to the byte; with the dataset's depth (``--depth-model standin``) TUM 0.0129 -> 0.0214 m from frame 0,
+    0.0088 / 0.0130 -> 0.0075 / 0.0086 m from frames 1 and 2 (fifty-eighth session). The parallel mode starts over
+    too (fifty-eighth session; 2 threads, Zen 3, three runs each, none -> the restart): TUM from frame 0 0.014-0.018
+    -> 0.015-0.019 m, 1.46-1.59 -> 1.16-1.44 deg; from frame 15, where the camera is turning, 0.027-0.029 ->
+    0.0144-0.0146 m, 2.05-2.19 -> 1.22-1.35 deg (the sequential run's 1.22 deg), at 8.9-10.8 -> 6.6-8.4 frames/s
+    (on Zen 5 from frame 0: 17.3 -> 14.5 frames/s whole process, 0.013 -> 0.018-0.021 m)."""
 
     def __post_init__(self) -> None:
         _check_levels("tracker", self.pyramid_levels, self.max_iterations)

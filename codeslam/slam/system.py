@@ -1235,9 +1235,9 @@ class CodeSLAM:
     def readout_restart(self) -> float | None:
         """The readout to process the frames so far again with (:meth:`restart_with_readout`), or None: the online
         choice once it is final, when a frame was rectified by another readout before and no more frames than
-        ``tracker.rolling_shutter_restart`` have been processed; sequential mapping only."""
+        ``tracker.rolling_shutter_restart`` have been processed (sequential and parallel mapping alike)."""
         choice, limit = self.readout_choice, self.config.tracker.rolling_shutter_restart
-        if choice is None or not choice.final or len(self._records) > limit or self.parallel:
+        if choice is None or not choice.final or len(self._records) > limit:
             return None
         return choice.value if self._readouts_used - {choice.value} else None
 
