@@ -61,21 +61,35 @@ class ReadoutChoice:
 
     value: None before ``min_frames`` informative frames, then the readout chosen so far (0.0: a global shutter);
     decided_at: the index of the frame that made it final; side: 0 while both directions are weighed, then +1
-    (rows read top down) or -1 (bottom up); ratios: each frame's log ratio per candidate (NaN: not weighed)."""
+    (rows read top down) or -1 (bottom up); ratios: each frame's log ratio per candidate (NaN: not weighed), the
+    one record of the evidence (the counts, sums and means are read from it)."""
 
     frames: int = 40
     min_frames: int = 10
     min_turn_deg: float = 0.5
     margin: float = 0.03
     confidence: float = 3.0
-    log_ratio: list[float] = field(default_factory=lambda: [0.0] * len(CANDIDATES))
-    log_ratio_sq: list[float] = field(default_factory=lambda: [0.0] * len(CANDIDATES))
-    count: list[int] = field(default_factory=lambda: [0] * len(CANDIDATES))
     ratios: list[tuple[float, ...]] = field(default_factory=list)
     seen: int = 0
     side: int = 0
     value: float | None = None
     decided_at: int | None = None
+
+    def _sums(self, i: int) -> tuple[int, float, float]:
+        """Candidate ``i``'s count of frames weighed, and the sum of its log ratios and of their squares, added
+        frame by frame in order (an explicit loop: Python 3.12's ``sum`` compensates, and the choice must not
+        depend on the interpreter)."""
+        n, s, sq = 0, 0.0, 0.0
+        for f in self.ratios:
+            y = f[i]
+            if not math.isnan(y):
+                n, s, sq = n + 1, s + y, sq + y * y
+        return n, s, sq
+
+    @property
+    def count(self) -> list[int]:
+        """The number of frames each candidate was weighed on."""
+        return [self._sums(i)[0] for i in range(len(CANDIDATES))]
 
     @property
     def final(self) -> bool:
@@ -88,7 +102,8 @@ class ReadoutChoice:
 
     def means(self) -> dict[float, float]:
         """Mean log residual ratio of each candidate weighed so far, over the frames it was weighed on."""
-        return {c: v / n for c, v, n in zip(CANDIDATES, self.log_ratio, self.count) if n}
+        sums = [self._sums(i) for i in range(len(CANDIDATES))]
+        return {c: s / n for c, (n, s, _) in zip(CANDIDATES, sums) if n}
 
     def global_shutter_settled(self) -> bool:
         """Whether every candidate still weighed has its mean log ratio above ``-margin`` by ``confidence``
@@ -98,8 +113,9 @@ class ReadoutChoice:
             return False
         for c in self.candidates:
             i = CANDIDATES.index(c)
-            n, mean = self.count[i], self.log_ratio[i] / self.count[i]
-            var = max(self.log_ratio_sq[i] - n * mean * mean, 0.0) / (n - 1)
+            n, s, sq = self._sums(i)
+            mean = s / n
+            var = max(sq - n * mean * mean, 0.0) / (n - 1)
             if mean - self.confidence * math.sqrt(var / n) < -self.margin:
                 return False
         return True
@@ -117,11 +133,7 @@ class ReadoutChoice:
             return  # an alignment without overlap says nothing
         frame = [math.nan] * len(CANDIDATES)
         for c, x in zip(self.candidates, r):
-            i, y = CANDIDATES.index(c), math.log(x / base)
-            self.log_ratio[i] += y
-            self.log_ratio_sq[i] += y * y
-            self.count[i] += 1
-            frame[i] = y
+            frame[CANDIDATES.index(c)] = math.log(x / base)
         self.ratios.append(tuple(frame))
         self.seen += 1
         if self.seen >= min(self.min_frames, self.frames):
