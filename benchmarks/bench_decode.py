@@ -40,6 +40,11 @@ def _bench() -> None:
     args = ap.parse_args()
     if args.threads < 1 or args.repeats < 1:
         ap.error("--threads and --repeats must be at least 1")
+    from codeslam.cli.common import keep_freed_memory
+
+    # As the codeslam command does at its start: without it every decoding faults its tens of MB of fresh pages in
+    # again (measured, 1 thread, Zen 3, two fresh processes each: 294-304 against 226-241 ms), which SLAM never pays.
+    keep_freed_memory()
     torch.set_num_threads(args.threads)
 
     from codeslam.data.imageio import read_rgb

@@ -24,6 +24,7 @@ from dataclasses import replace
 
 import torch
 
+from codeslam.cli.common import keep_freed_memory
 from codeslam.clock import NO_CLOCK, StageClock
 from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.lie import se3_exp
@@ -99,6 +100,7 @@ def main() -> None:
     if args.geometric_stride < 1:
         ap.error("--geometric-stride must be >= 1")
     args.skip_autograd = args.skip_autograd or args.autograd_repeats == 0
+    keep_freed_memory()  # as the codeslam command does at its start (the window's iterations run under it)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     device = torch.device(args.device)

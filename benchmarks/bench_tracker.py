@@ -44,6 +44,9 @@ def main() -> None:
     ap.add_argument("--weights", default=None, help="network weights (default: the shipped ones)")
     ap.add_argument("--repeats", type=int, default=1, help="track every frame this many times per path")
     a = ap.parse_args()
+    from codeslam.cli.common import keep_freed_memory
+
+    keep_freed_memory()  # as the codeslam command does at its start
     torch.set_num_threads(a.threads)
 
     from codeslam.data.registry import open_dataset
