@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from codeslam.cli.common import keep_freed_memory
 from codeslam.geometry.image import rgb_to_gray
 from codeslam.geometry.lie import se3_inverse, se3_log
 from codeslam.slam.config import SLAMConfig
@@ -44,8 +45,6 @@ def main() -> None:
     ap.add_argument("--weights", default=None, help="network weights (default: the shipped ones)")
     ap.add_argument("--repeats", type=int, default=1, help="track every frame this many times per path")
     a = ap.parse_args()
-    from codeslam.cli.common import keep_freed_memory
-
     keep_freed_memory()  # as the codeslam command does at its start
     torch.set_num_threads(a.threads)
 
