@@ -129,6 +129,13 @@ class TrainConfig:
     # Weight of the NLL of the zero-code prediction D(I, 0) (not in the paper; see codeslam.network.loss: without
     # it the image-only prediction trains far slower than the reconstruction); 0 disables it.
     zero_code_weight: float = 1.0
+    # Weight of the zero-code prediction's scale-free shape error (not in the paper; codeslam.network.loss.shape_error:
+    # log-depth gradient matching and the scale-invariant log error); 0 disables it. Measured as 1,000-step fine-tunes
+    # of the shipped default (docs/results/depth_prior_ablation.md, sixtieth session): at 100 the zero code's error
+    # after its per-frame scale falls on all 10 sets (TUM fr1/rpy 0.0836 -> 0.0762, the HoloLens walk 0.0766 ->
+    # 0.0752, the generator's 3-8%) while its scale moves (TUM's median depth ratio 1.26 -> 1.36), and SLAM is no
+    # better (one run a sequence, mixed; a fine-tune alone moves it as much); 300 adds little. Off by default.
+    shape_weight: float = 0.0
     # Scale-equivariant code span (not in the paper): the code path's targets (the encoder's input and the
     # reconstruction) at each image's depth times exp(u), u uniform in [-x, x], the zero code's at the true depth.
     # The window fits keyframe codes to images, which fix the shape and not the scale, so where the decoder's
@@ -198,7 +205,7 @@ class TrainConfig:
         if not 0 <= self.flip_prob <= 1:
             raise ConfigError(f"train.flip_prob must lie in [0, 1], got {self.flip_prob}")
         for name in ("brightness", "contrast", "gamma", "noise_std", "checkpoint_minutes", "exposure", "vignetting",
-                     "sensor_noise", "rolling_shutter", "distortion", "border", "code_scale"):
+                     "sensor_noise", "rolling_shutter", "distortion", "border", "code_scale", "shape_weight"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"train.{name} must be >= 0, got {getattr(self, name)}")
         from codeslam.network.camera_effects import BLUR_TAPS

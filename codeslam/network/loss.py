@@ -6,7 +6,8 @@ Normalisation, per batch::
     nll      = sum_l 4^l * sum_{valid pixels of level l} (|p - mu| / b + log b)  /  N_0
     kl       = mean over images of KL(N(mean, exp(logvar)) || N(0, I))
     nll_zero = nll with mu decoded from the zero code and b held fixed (no gradient to b)
-    loss     = nll + kl_weight * kl / (H * W) + zero_code_weight * nll_zero
+    shape    = shape_error of the zero-code prediction (scale-free; see the function)
+    loss     = nll + kl_weight * kl / (H * W) + zero_code_weight * nll_zero + shape_weight * shape
 
 where N_0 is the number of valid pixels at the finest level. Level l has 4^-l times the pixels of level 0,
 so the weight 4^l ("to account for the lower pixel count", Sec. 2.1) gives every level about the same
@@ -27,6 +28,7 @@ from typing import NamedTuple
 
 import torch
 
+from codeslam.constants import MAX_PROXIMITY, MIN_PROXIMITY
 from codeslam.geometry.image import depth_pyramid
 from codeslam.geometry.proximity import depth_to_prox
 from codeslam.network.config import NUM_LEVELS
@@ -38,6 +40,7 @@ class LossParts(NamedTuple):
     nll_levels: list[torch.Tensor]  # NUM_LEVELS x () mean NLL over the valid pixels of each level (for logging)
     kl: torch.Tensor  # () KL divergence per image (nats)
     nll_zero: torch.Tensor  # () level-weighted NLL of the zero-code prediction (0 when not computed)
+    shape: torch.Tensor  # () the zero-code prediction's shape_error (0 when not computed)
 
 
 def proximity_pyramid(depth: torch.Tensor, avg_depth: float, levels: int = NUM_LEVELS) -> list[torch.Tensor]:
@@ -81,6 +84,37 @@ def pyramid_nll(
     return nll / n_valid0, nll_levels
 
 
+def _log_depth(prox: torch.Tensor) -> torch.Tensor:
+    """``log D - log a`` of proximity ``p = a / (D + a)`` (Eq. 4 inverted), with p held inside (0, 1): the
+    decoder's heads are not bounded, and a prediction outside gives no shape gradient (its NLL still pulls it)."""
+    p = prox.clamp(MIN_PROXIMITY, MAX_PROXIMITY)
+    return torch.log1p(-p) - torch.log(p)
+
+
+def shape_error(mu: list[torch.Tensor], prox: list[torch.Tensor]) -> torch.Tensor:
+    """The error of the predicted depth's shape alone, blind to its scale, summed over the levels (not in the paper).
+
+    With ``R = log D(mu) - log D(prox)`` on the valid pixels of a level: the mean absolute difference of R between
+    horizontal and between vertical neighbours that are both valid (gradient matching, Li & Snavely, MegaDepth, CVPR
+    2018), plus the mean over images of R's variance (the scale-invariant log error of Eigen et al., NIPS 2014,
+    with lambda = 1). Multiplying an image's predicted depth by any constant leaves both unchanged.
+    mu, prox: NUM_LEVELS lists of (B, 1, H / 2^l, W / 2^l), ``prox`` 0 where invalid -> ()."""
+    total = mu[0].new_zeros(())
+    for m, p in zip(mu, prox, strict=True):
+        valid = p > 0  # (B, 1, h, w)
+        R = torch.where(valid, _log_depth(m) - _log_depth(torch.where(valid, p, 0.5)), 0.0)  # (B, 1, h, w)
+        vx = valid[..., :, 1:] & valid[..., :, :-1]  # (B, 1, h, w - 1) both neighbours valid
+        vy = valid[..., 1:, :] & valid[..., :-1, :]  # (B, 1, h - 1, w)
+        gx = (R[..., :, 1:] - R[..., :, :-1]).abs() * vx
+        gy = (R[..., 1:, :] - R[..., :-1, :]).abs() * vy
+        total = total + gx.sum() / vx.sum().clamp_min(1) + gy.sum() / vy.sum().clamp_min(1)
+        n = valid.flatten(1).sum(1).clamp_min(1)  # (B,) valid pixels per image
+        mean = R.flatten(1).sum(1) / n  # (B,)
+        var = (R.flatten(1).square().sum(1) / n - mean.square()).clamp_min(0.0)  # (B,)
+        total = total + var.mean()
+    return total
+
+
 def network_loss(
     mu: list[torch.Tensor],
     b: list[torch.Tensor],
@@ -91,23 +125,29 @@ def network_loss(
     mu_zero: list[torch.Tensor] | None = None,
     zero_code_weight: float = 0.0,
     prox_zero: list[torch.Tensor] | None = None,
+    shape_weight: float = 0.0,
 ) -> LossParts:
     """The loss of one batch (see the module docstring).
 
     mu, b, prox: NUM_LEVELS lists of (B, 1, H / 2^l, W / 2^l), finest first, ``prox`` 0 where invalid (as from
     :func:`proximity_pyramid`); code_mean, code_logvar: (B, C); mu_zero: like mu, decoded from the zero code,
-    needed when ``zero_code_weight`` > 0; prox_zero: the zero code's target when it is not ``prox`` (the code
-    path's targets scaled, ``train.code_scale``).
+    needed when ``zero_code_weight`` or ``shape_weight`` > 0; prox_zero: the zero code's target when it is not
+    ``prox`` (the code path's targets scaled, ``train.code_scale``); shape_weight: the weight of the zero code's
+    :func:`shape_error` (``train.shape_weight``).
     """
     nll, nll_levels = pyramid_nll(mu, b, prox)
     kl = kl_to_standard_normal(code_mean, code_logvar).mean()
     H, W = prox[0].shape[-2:]
     total = nll + kl_weight * kl / (H * W)
     nll_zero = nll.new_zeros(())
+    shape = nll.new_zeros(())
     if mu_zero is not None:
         target = prox if prox_zero is None else prox_zero
         nll_zero, _ = pyramid_nll(mu_zero, [s.detach() for s in b], target)
         total = total + zero_code_weight * nll_zero
-    elif zero_code_weight > 0:
-        raise ValueError("zero_code_weight > 0 needs mu_zero (forward with decode_zero=True)")
-    return LossParts(total, nll, nll_levels, kl, nll_zero)
+        if shape_weight > 0:
+            shape = shape_error(mu_zero, target)
+            total = total + shape_weight * shape
+    elif zero_code_weight > 0 or shape_weight > 0:
+        raise ValueError("zero_code_weight or shape_weight > 0 needs mu_zero (forward with decode_zero=True)")
+    return LossParts(total, nll, nll_levels, kl, nll_zero, shape)

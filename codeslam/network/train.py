@@ -52,7 +52,7 @@ from codeslam.network.weights import CHECKPOINT_FORMAT, MODEL_PREFIX, read_tenso
 CHECKPOINT_NAME = "checkpoint.safetensors"
 WEIGHTS_NAME = "weights.safetensors"
 LOG_FIELDS = ["step", "epoch", "lr", "kl_weight", "loss", "nll", *[f"nll_l{i}" for i in range(NUM_LEVELS)], "kl",
-              "nll_zero", "images_per_s", "elapsed_s"]
+              "nll_zero", "shape", "images_per_s", "elapsed_s"]
 VAL_FIELDS = ["step", "val_loss", "val_nll", "val_kl", "val_rmse_zero", "val_rmse_encode", "val_rmse_const"]
 _OPTIM_PREFIX = "optim."
 
@@ -287,10 +287,10 @@ def train_step(
         prox_zero = prox
         scaled = depth * torch.exp(u).to(depth.device).view(-1, 1, 1, 1)  # (B, 1, H, W), holes stay 0
         prox = proximity_pyramid(scaled.to(device), ncfg.avg_depth)
-    zero_w = tcfg.zero_code_weight
-    out = net(image, prox[0], sample=True, noise=noise, decode_zero=zero_w > 0)
+    zero_w, shape_w = tcfg.zero_code_weight, tcfg.shape_weight
+    out = net(image, prox[0], sample=True, noise=noise, decode_zero=zero_w > 0 or shape_w > 0)
     parts = network_loss(
-        out.mu, out.b, prox, out.code_mean, out.code_logvar, kl_weight, out.mu_zero, zero_w, prox_zero
+        out.mu, out.b, prox, out.code_mean, out.code_logvar, kl_weight, out.mu_zero, zero_w, prox_zero, shape_w
     )
     opt.zero_grad(set_to_none=True)
     parts.total.backward()
@@ -432,7 +432,7 @@ def _train(data, run_dir, config, resume, stop_after, progress, log, store, d: _
     if start >= end:
         say(f"{run_dir} is already at step {start} of {tcfg.steps}: nothing to do (raise --steps to train on)")
         return TrainResult(run_dir, start, start >= tcfg.steps, float("nan"), saved_extra.get("val", {}))
-    acc = torch.zeros(4 + NUM_LEVELS, dtype=torch.float64, device=device)  # loss, nll, kl, nll_zero, per level
+    acc = torch.zeros(5 + NUM_LEVELS, dtype=torch.float64, device=device)  # loss, nll, kl, nll_zero, shape, levels
     acc_n, t_window, images_window = 0, time.perf_counter(), 0
     t_start, t_ckpt = time.perf_counter(), time.perf_counter()
     last_loss, last_val, rate = float("nan"), {}, 0.0
@@ -451,7 +451,8 @@ def _train(data, run_dir, config, resume, stop_after, progress, log, store, d: _
             lr, klw = learning_rate(step, tcfg), kl_weight_at(step, tcfg)
             parts = train_step(net, opt, store, order.batch(step), step, config, lr, klw, d.rank, device)
             with torch.no_grad():  # accumulated on the device: no host sync per step
-                acc += torch.stack([parts.total, parts.nll, parts.kl, parts.nll_zero, *parts.nll_levels]).double()
+                acc += torch.stack([parts.total, parts.nll, parts.kl, parts.nll_zero, parts.shape,
+                                    *parts.nll_levels]).double()
             acc_n += 1
             images_window += tcfg.batch_size * d.world
             done = step + 1
@@ -473,8 +474,9 @@ def _train(data, run_dir, config, resume, stop_after, progress, log, store, d: _
                     train_log.append({
                         "step": done, "epoch": order.epoch_of(step), "lr": f"{lr:.4g}", "kl_weight": f"{klw:.4g}",
                         "loss": f"{mean[0]:.6f}", "nll": f"{mean[1]:.6f}",
-                        **{f"nll_l{i}": f"{mean[4 + i]:.6f}" for i in range(NUM_LEVELS)},
-                        "kl": f"{mean[2]:.4f}", "nll_zero": f"{mean[3]:.6f}", "images_per_s": f"{rate:.2f}",
+                        **{f"nll_l{i}": f"{mean[5 + i]:.6f}" for i in range(NUM_LEVELS)},
+                        "kl": f"{mean[2]:.4f}", "nll_zero": f"{mean[3]:.6f}",
+                        "shape": f"{mean[4]:.6f}", "images_per_s": f"{rate:.2f}",
                         "elapsed_s": f"{elapsed_before + now - t_start:.1f}",
                     })
                 acc.zero_()

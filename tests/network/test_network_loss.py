@@ -4,9 +4,16 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
-from codeslam.network.loss import kl_to_standard_normal, laplace_nll, network_loss, proximity_pyramid
+from codeslam.network.loss import (
+    kl_to_standard_normal,
+    laplace_nll,
+    network_loss,
+    proximity_pyramid,
+    shape_error,
+)
 
 
 def _levels(values: list[float], B: int = 1, size: int = 8) -> list[torch.Tensor]:
@@ -104,3 +111,67 @@ def test_zero_code_term_trains_mu_zero_only():
     grads = torch.autograd.grad(parts.nll_zero, [*mu_zero, *b], allow_unused=True)
     assert all(g is not None and g.abs().sum() > 0 for g in grads[:4])
     assert all(g is None or torch.all(g == 0) for g in grads[4:])
+
+
+def _prox(depth: torch.Tensor) -> list[torch.Tensor]:
+    return proximity_pyramid(depth, 1.5)
+
+
+def test_shape_error_is_blind_to_each_images_scale():
+    """A prediction that is the truth times a constant per image has no shape error, whatever the constants;
+    a bent one has, and the same at every scale of it."""
+    torch.manual_seed(2)
+    depth = torch.rand(2, 1, 16, 16, dtype=torch.float64) * 3 + 0.5
+    depth[0, 0, :3, :5] = 0  # holes
+    truth = _prox(depth)
+    scaled = _prox(depth * torch.tensor([0.4, 2.5], dtype=torch.float64).view(2, 1, 1, 1))
+    assert float(shape_error(scaled, truth)) == pytest.approx(0.0, abs=1e-9)
+    ramp = torch.linspace(0.7, 1.4, 16, dtype=torch.float64).view(1, 1, 1, 16)  # a tilt: not a scale
+    bent = depth * ramp
+    err = float(shape_error(_prox(bent), truth))
+    assert err > 1e-3
+    assert float(shape_error(_prox(bent * 3.0), truth)) == pytest.approx(err, rel=1e-6)
+
+
+def test_shape_error_ignores_invalid_pixels():
+    torch.manual_seed(3)
+    depth = torch.rand(1, 1, 16, 16, dtype=torch.float64) * 3 + 0.5
+    depth[..., 4:9, 4:9] = 0
+    truth = _prox(depth)
+    pred = _prox(torch.rand(1, 1, 16, 16, dtype=torch.float64) * 3 + 0.5)
+    other = [p.clone() for p in pred]
+    for o, t in zip(other, truth):
+        o[t == 0] = 0.9  # what the prediction says where the truth is missing
+    assert float(shape_error(other, truth)) == pytest.approx(float(shape_error(pred, truth)), rel=1e-12)
+
+
+def test_shape_error_by_hand():
+    """One 1x3 image per level, log-depth residuals R = (0, r, 0): neighbour differences |r|, |r| over 2 pairs
+    (x), none in y; variance of (0, r, 0) = 2 r^2 / 9; on each of the 4 levels."""
+    p = 1.5 / (torch.tensor([1.0, 2.0, 3.0], dtype=torch.float64) + 1.5)  # depths 1, 2, 3 m at a = 1.5
+    truth = [p.view(1, 1, 1, 3)] * 4
+    r = 0.3
+    d_pred = torch.tensor([1.0, 2.0 * math.exp(r), 3.0], dtype=torch.float64)
+    pred = [(1.5 / (d_pred + 1.5)).view(1, 1, 1, 3)] * 4
+    assert float(shape_error(pred, truth)) == pytest.approx(4 * (r + 2 * r * r / 9), rel=1e-9)
+
+
+def test_shape_term_joins_the_total_and_trains_mu_zero_only():
+    torch.manual_seed(4)
+    depth = torch.rand(1, 1, 16, 16, dtype=torch.float64) * 3 + 0.5  # level 3: 2x2
+    prox = _prox(depth)
+    mu = [p.clone().requires_grad_() for p in prox]
+    mu_zero = [(p * (1 + 0.1 * torch.rand_like(p))).requires_grad_() for p in prox]
+    b = [torch.full_like(p, 0.2) for p in prox]
+    zero = torch.zeros(1, 2, dtype=torch.float64)
+    plain = network_loss(mu, b, prox, zero, zero, 1.0, mu_zero, zero_code_weight=0.5)
+    parts = network_loss(mu, b, prox, zero, zero, 1.0, mu_zero, zero_code_weight=0.5, shape_weight=3.0)
+    value = float(parts.shape.detach())
+    assert float(plain.shape) == 0.0
+    assert value == pytest.approx(float(shape_error(mu_zero, prox).detach()), rel=1e-12)
+    assert float(parts.total.detach()) == pytest.approx(float(plain.total.detach()) + 3.0 * value, rel=1e-12)
+    grads = torch.autograd.grad(parts.shape, [*mu_zero, *mu], allow_unused=True)
+    assert all(g is not None and g.abs().sum() > 0 for g in grads[:4])
+    assert all(g is None for g in grads[4:])
+    with pytest.raises(ValueError, match="shape_weight"):
+        network_loss(mu, b, prox, zero, zero, 1.0, None, shape_weight=1.0)

@@ -223,3 +223,31 @@ def test_code_scale_moves_only_the_code_paths_targets(tiny_config, synthetic_fra
     assert abs(float(scaled.nll) - float(plain.nll)) > 1e-3
     with pytest.raises(ConfigError, match="code_scale"):
         TrainConfig(code_scale=-0.1)
+
+
+def test_shape_weight_adds_the_zero_codes_shape_error(tiny_config, synthetic_frames):
+    """``train.shape_weight``: the step's total gains exactly shape_weight times the zero code's shape error, and
+    with 0 the step of before to the bit (the term is neither computed nor logged as anything but 0)."""
+    from codeslam.network.data import DEPTH_UNITS_PER_M, FrameStore
+    from codeslam.network.train import train_step
+
+    images, depth = synthetic_frames(4, 32, 32)
+    store = FrameStore(images, (depth * DEPTH_UNITS_PER_M).round().to(torch.uint16), [("s", 0, 4)])
+    ncfg, idx = tiny_config(), torch.arange(4)
+
+    def step(shape_weight: float, zero_code_weight: float = 1.0):
+        torch.manual_seed(0)
+        net = CodeNetwork(ncfg).train()
+        cfg = RunConfig(ncfg, TrainConfig(shape_weight=shape_weight, zero_code_weight=zero_code_weight))
+        opt = torch.optim.Adam(net.parameters(), lr=1e-3)
+        parts = train_step(net, opt, store, idx, 3, cfg, 1e-3, 1.0, 0, torch.device("cpu"))
+        return parts._replace(**{k: v.detach() for k, v in parts._asdict().items() if torch.is_tensor(v)})
+
+    plain, shaped = step(0.0), step(2.0)
+    assert float(plain.shape) == 0.0 and float(shaped.shape) > 0
+    assert float(shaped.total) == pytest.approx(float(plain.total) + 2.0 * float(shaped.shape), rel=1e-6)
+    alone = step(2.0, zero_code_weight=0.0)  # the zero code is decoded for the shape term alone too
+    assert float(alone.shape) == pytest.approx(float(shaped.shape), rel=1e-6)
+    assert float(alone.total) == pytest.approx(float(shaped.total) - float(shaped.nll_zero), rel=1e-6)
+    with pytest.raises(ConfigError, match="shape_weight"):
+        TrainConfig(shape_weight=-1.0)
