@@ -226,8 +226,9 @@ def test_code_scale_moves_only_the_code_paths_targets(tiny_config, synthetic_fra
 
 
 def test_shape_weight_adds_the_zero_codes_shape_error(tiny_config, synthetic_frames):
-    """``train.shape_weight``: the step's total gains exactly shape_weight times the zero code's shape error, and
-    with 0 the step of before to the bit (the term is neither computed nor logged as anything but 0)."""
+    """``train.shape_weight``: the step's total gains exactly shape_weight times the zero code's shape error; at 0
+    the term is neither computed nor added (logged as 0); without the zero code's NLL the zero code is still
+    decoded for it."""
     from codeslam.network.data import DEPTH_UNITS_PER_M, FrameStore
     from codeslam.network.train import train_step
 
