@@ -6,8 +6,8 @@ window's cost at the solved state, at one pyramid level: its derivative along th
 keyframe's by the same factor, to first order) and its curvature ``d^T H d`` there. The data terms (photometric,
 geometric, keypoints) are exactly scale-free, so they read 0; what is left says which priors hold the window's
 scale and how firmly. A positive derivative pulls the window smaller, a negative one larger. Needs the window's
-scale entry (``--config`` with ``window: {free_scale: true, map_prior_weight: 0}``): with the code alone no code
-direction is a pure scale.
+scale entry (``--config`` with ``window: {free_scale: true, map_prior_weight: 0, sfm: {geometric_pose_min_std: 0}}``):
+with the code alone no code direction is a pure scale.
 
 Measured (docs/results/slam_table.md, twenty-fifth session; generator walk 43, solves 30-34): photometric,
 geometric, keypoints 0.00; the marginal prior +21 to +42 (curvature 1.5-2.2e5); the four depth scale priors -33 to

@@ -43,6 +43,16 @@ class SfMConfig:
     -6..+9 frames the far masters 60, 100, 140 end +1.5%, -18%, +9% against their zero code at 0.08 and -10%,
     -25%, -19% at 0.25; the close masters 6, 18, 30, 42 (+-2, +-4) -20..-41% and -24..-31%. It costs the
     generator rooms part of their gain (scene 0, one paired frame: -53% -> -23%)."""
+    geometric_pose_min_std: float = 0.0
+    """Where a pair's first view is blank, its geometric residuals refine the codes but do not move the poses: the
+    standard deviation of A's intensities over the pixels its photometric residuals see in B (what that term has
+    to go on, the tracker's ``texture``) below this scales the geometric rows' derivatives by the poses (and
+    readout rotations) by ``(std / this)^2``. Only the steps' normal equations leave that pull out; the cost that
+    accepts or rejects a step keeps the whole term. The geometric residual (Eq. 14) compares two decoded depths;
+    where the images cannot correct them they stay the network's single-view guesses, whose disagreement (an error
+    of scale or layout shared by all pixels) thousands of pixels otherwise count as a precise measurement of the
+    camera moving along its axis. 0 switches it off (the default here; the SLAM window's is 0.1,
+    :func:`~codeslam.slam.config._default_window_sfm`)."""
     geometric_stride: int = 1
     """Geometric residuals on every s-th pixel of every s-th row of the finest level only (level l: s >> l, at
     least 1), each weighted s^2 so the term keeps its weight. The decoded depths are smooth, so the term's
@@ -165,6 +175,8 @@ class SfMConfig:
             raise ConfigError("SfM config: need 0 < damping_decrease < 1 < damping_increase")
         if not (isinstance(self.geometric_stride, int) and self.geometric_stride >= 1):
             raise ConfigError(f"SfM config: geometric_stride must be an integer >= 1, got {self.geometric_stride}")
+        if not self.geometric_pose_min_std >= 0:  # "not >=" also refuses NaN
+            raise ConfigError(f"SfM config: geometric_pose_min_std must be >= 0, got {self.geometric_pose_min_std}")
         if self.geometric_space not in GEOMETRIC_SPACES:
             raise ConfigError(f"SfM config: geometric_space must be one of {GEOMETRIC_SPACES}, "
                               f"got {self.geometric_space!r}")

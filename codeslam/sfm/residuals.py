@@ -59,6 +59,7 @@ class PairEvaluation:
     residual's space), v (P, N, 2). row_cost (P, T, N): each valid row's robust cost (0 where masked), set by
     :func:`robust_weights`, which :func:`common_cost_change` compares between two evaluations; cost (P,): the
     pairs' robust cost as the solver priced it (:meth:`~codeslam.sfm.solver.PairProblem.evaluate`).
+    geo_pose_scale (P,): the factor on the geometric rows' pose derivatives (:func:`blank_view_scale`), None for 1.
     """
 
     types: tuple[str, ...]
@@ -81,6 +82,7 @@ class PairEvaluation:
     rs: RollingShutterWarp | None = None
     row_cost: torch.Tensor | None = None
     cost: torch.Tensor | None = None
+    geo_pose_scale: torch.Tensor | None = None
 
 
 @dataclass
@@ -339,6 +341,10 @@ def evaluate_pairs(
         rs.append(r)
     valid_t = torch.stack(valids, dim=1)  # (P, T, N)
     r_t = torch.where(valid_t, torch.stack(rs, dim=1), torch.zeros((), dtype=prox.dtype, device=prox.device))
+    geo_pose_scale = None
+    if cfg.geometric_pose_min_std > 0 and cfg.photometric and cfg.geometric:
+        seen = valids[types.index(PHOTOMETRIC)]  # A's pixels the photometric term compares with B
+        geo_pose_scale = blank_view_scale(level.gray[iA].reshape(P, -1), seen, cfg.geometric_pose_min_std)
     return PairEvaluation(
         types=types,
         r=r_t,
@@ -358,7 +364,19 @@ def evaluate_pairs(
         dgeo_dprox_B=dgeo_dprox_B,
         v=v_safe,
         rs=rs_warp,
+        geo_pose_scale=geo_pose_scale,
     )
+
+
+def blank_view_scale(gray_A: torch.Tensor, seen: torch.Tensor, min_std: float) -> torch.Tensor:
+    """(P,) ``min(1, std / min_std)^2`` with ``std`` the standard deviation of each pair's ``gray_A`` (P, N) over its
+    pixels ``seen`` (P, N) bool (0 where none): how far the geometric residuals may move a pair's poses
+    (:attr:`~codeslam.sfm.config.SfMConfig.geometric_pose_min_std`)."""
+    m = seen.to(gray_A.dtype)
+    count = m.sum(1).clamp_min(1.0)
+    mean = (gray_A * m).sum(1) / count
+    std = (((gray_A - mean[:, None]) ** 2 * m).sum(1) / count).sqrt()
+    return (std / min_std).clamp(max=1.0).square().detach()
 
 
 def robust_weights(ev: PairEvaluation, masked_rows: str = "threshold") -> tuple[torch.Tensor, torch.Tensor]:
@@ -477,6 +495,8 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
                                                          rw.s_A, rw.s_B)
             J_local[:, i, :, POSE_DIM + AFFINE_DIM:] = torch.cat([dr_dwA, dr_dwB], dim=-1)
         pose_row(dr_dx, x_pose, out=J_local[:, i, :, :POSE_DIM])  # Eqs. 7-8 in SE(3) left form, (P, N, 6)
+        if t != PHOTOMETRIC and ev.geo_pose_scale is not None:  # a blank first view: the codes' term only
+            J_local[:, i] *= ev.geo_pose_scale[:, None, None]  # its affine columns are 0
         s_A.append(_dot3(dr_dx, dx_dd) * ev.dd_dprox_A)  # Eq. 9 with dD_A/dc_A = dD/dP J_A[u]
     valid = ev.valid
     # masked rows are zero (their NaN/inf included); by row index: masked_fill_ broadcasting the (P, T, N, 1) mask

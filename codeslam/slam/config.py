@@ -399,9 +399,16 @@ def _default_window_sfm() -> SfMConfig:
     # of 2026-12-03, thirty-fourth) iterations per solve fell or held on every run (TUM 10 -> 7) and the ATE's
     # geometric mean went 0.95x over the 16 at every frame (TUM fr1/rpy 0.0131 -> 0.0099 m, the four stand-in runs
     # 0.85-0.93x, walks and corridors 0.96-1.03x, the HoloLens walk 1.01x).
+    # geometric_pose_min_std: a keyframe pair whose first view is blank (intensity std below 0.1; the tracker's
+    # textured views read 0.1-0.2, the shared real sequences' tracked frames 0.146 or more) lets its geometric
+    # residuals refine the codes, not move the poses (SfMConfig.geometric_pose_min_std). On the generator's blank
+    # walls the term turned the keyframes' disagreeing single-view depths into motion along the optical axis: the
+    # fast turn 14 with the dataset's depth stepped up to 27 mm a frame where the camera moved 1-5 mm (rotation
+    # error 4.5 deg; without the term's pose rows 0.3 deg). Measured (docs/results/slam_table.md, session of
+    # 2026-12-07, sixty-first).
     return SfMConfig(pyramid_levels=(2, 1, 0), max_iterations=(8, 6, 5), sigma_geometric=0.25,
                      rejection_stop_decrease=3e-4, relative_cost_tolerance=3e-4, masked_rows="common",
-                     weights_per_level=True)
+                     weights_per_level=True, geometric_pose_min_std=0.1)
 
 
 @dataclass(frozen=True)
@@ -594,6 +601,10 @@ class WindowConfig:
             raise ConfigError("window.free_scale needs window.sfm.geometric_space: log_depth")
         if self.free_scale and self.map_prior_weight > 0:  # measured apart only; together a test's window diverged
             raise ConfigError("window.free_scale needs window.map_prior_weight: 0 (the two together are not measured)")
+        if self.free_scale and self.sfm.geometric_pose_min_std > 0:  # measured apart only; together a test's
+            # window ended with a NaN derivative of the geometric term along its scale (the scale entry's 1 / dgeo_dP)
+            raise ConfigError("window.free_scale needs window.sfm.geometric_pose_min_std: 0 (the two together are not "
+                              "measured)")
         if not (isinstance(self.coarse_iterations_after_stop, int) and self.coarse_iterations_after_stop >= -1):
             raise ConfigError(f"window.coarse_iterations_after_stop must be an integer >= 0, or -1, got "
                               f"{self.coarse_iterations_after_stop}")

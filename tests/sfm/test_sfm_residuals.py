@@ -9,6 +9,7 @@ import pytest
 import torch
 from sfm_scene import look_pose, make_frames
 
+from codeslam.errors import ConfigError
 from codeslam.geometry.image import bilinear_sample, image_gradients
 from codeslam.geometry.lie import se3_exp
 from codeslam.sfm.autodiff import autodiff_jacobian, bilinear_sample_gather
@@ -464,3 +465,39 @@ def test_sample_by_frame_gives_each_pairs_bilinear_lookup_whatever_the_thread_co
         assert torch.equal(outs[0][p], outs[1][p])
     outside = (uv[0] < -1).any(-1) | (uv[0][:, 0] > 32) | (uv[0][:, 1] > 24)  # no neighbour inside
     assert int(outside.sum()) > 0 and bool((outs[0][0][:, outside] == 0).all())
+
+
+def test_a_blank_first_view_keeps_the_geometric_rows_off_the_poses(problem):
+    """``geometric_pose_min_std``: a pair whose first view is blank (its intensities' standard deviation over the
+    pixels the photometric term sees below the threshold) keeps the geometric rows' code derivatives and loses their
+    pose derivatives by ``(std / threshold)^2``; the photometric rows, the residuals and the cost do not change, and
+    a pair above the threshold keeps every derivative."""
+    level, state = problem
+    F_, _, H, W = level.gray.shape
+    flat = level.gray.clone()
+    flat[1] = 0.5 + 0.01 * (level.gray[1] - level.gray[1].mean())  # frame 1 nearly blank (std ~ 0.01 of before)
+    level = dataclasses.replace(level, gray=flat, gray_grad=image_gradients(flat))
+    base = SfMConfig(gradient_mode="interpolant")
+    gated = SfMConfig(gradient_mode="interpolant", geometric_pose_min_std=0.05)
+    ev0 = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, base)
+    ev1 = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, gated)
+    t0, t1 = pair_jacobians(level, PAIRS, ev0), pair_jacobians(level, PAIRS, ev1)
+    assert ev0.geo_pose_scale is None
+    seen = ev1.valid[:, 0]
+    expected = torch.stack([
+        (flat[a, 0].reshape(-1)[seen[p]].std(unbiased=False) / 0.05).clamp(max=1.0) ** 2
+        for p, a in enumerate(PAIRS[:, 0].tolist())])
+    torch.testing.assert_close(ev1.geo_pose_scale, expected)
+    blank = PAIRS[:, 0] == 1
+    assert bool((ev1.geo_pose_scale[blank] < 0.01).all()) and bool((ev1.geo_pose_scale[~blank] == 1).all())
+    torch.testing.assert_close(t1.r, t0.r, rtol=0, atol=0)
+    torch.testing.assert_close(t1.cost, t0.cost, rtol=0, atol=0)
+    for name in ("s_A", "s_B"):
+        torch.testing.assert_close(getattr(t1, name), getattr(t0, name), rtol=0, atol=0)
+    torch.testing.assert_close(t1.J_local[:, 0], t0.J_local[:, 0], rtol=0, atol=0)  # photometric rows
+    geo0, geo1 = t0.J_local[:, 1], t1.J_local[:, 1]
+    assert geo0[blank].abs().max() > 0
+    torch.testing.assert_close(geo1, geo0 * ev1.geo_pose_scale[:, None, None], rtol=1e-12, atol=0)
+    torch.testing.assert_close(geo1[~blank], geo0[~blank], rtol=0, atol=0)
+    with pytest.raises(ConfigError, match="geometric_pose_min_std"):
+        SfMConfig(geometric_pose_min_std=-0.1)

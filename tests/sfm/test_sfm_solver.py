@@ -7,13 +7,15 @@ import math
 
 import pytest
 import torch
-from sfm_scene import look_pose, make_frames
+from sfm_scene import look_pose, make_frames, render
 
 from codeslam.clock import StageClock
 from codeslam.errors import CodeSLAMError
+from codeslam.geometry.camera import canonical_camera
 from codeslam.geometry.lie import se3_exp, se3_inverse, se3_log
 from codeslam.geometry.proximity import depth_to_prox
 from codeslam.sfm.config import SfMConfig
+from codeslam.sfm.decoder import standin_decoder
 from codeslam.sfm.keyframes import Keyframe, build_levels
 from codeslam.sfm.pairs import master_pairs
 from codeslam.sfm.solver import PairProblem, damping_weights, levenberg_marquardt, sfm, solve_damped
@@ -353,3 +355,27 @@ def test_a_level_holds_its_first_evaluations_weights_only_when_asked():
         kept = first if held else fresh
         assert torch.equal(later.fixed_weight, kept.fixed_weight) and torch.equal(later.sigma, kept.sigma)
         assert (cost != fresh_cost) == held
+
+
+@pytest.mark.parametrize("min_std", [0.0, 0.1])
+def test_depths_that_disagree_on_blank_views_move_the_poses_only_without_the_blank_view_gate(min_std):
+    """Two blank views (one grey level) whose decoded depths disagree by 10% (B's scaled): the photometric term
+    sees nothing, so the geometric residuals alone decide. They move B along its optical axis to make the depths
+    agree; with ``geometric_pose_min_std`` above the views' intensity spread (0) they move only the codes, and B
+    stays at its start (measured: 0.19 m and 0.5 deg off without the gate, 0 with it). The code moves either way."""
+    cam = canonical_camera(32, 24)
+    kfs = []
+    for k, T in enumerate(GT_POSES[:2]):
+        _, depth = render(T, cam.params(D), 24, 32, panel=False)
+        prox = depth_to_prox(depth * (1.1 if k == 1 else 1.0), 2.0)
+        decoder = standin_decoder(prox, 4, 1, 2.0, code_offset=torch.zeros(4, dtype=D))  # prox at the zero code
+        kfs.append(Keyframe(torch.full((24, 32), 0.5, dtype=D), cam, decoder))
+    cfg = SfMConfig(pyramid_levels=(0,), max_iterations=(10,), geometric_pose_min_std=min_std)
+    res = sfm(kfs, [(0, 1), (1, 0)], cfg, poses_init=torch.stack(GT_POSES[:2]),
+              fixed=[BlockId(POSE, 0), BlockId(CODE, 0)])
+    t_err, r_err = _pose_error(res.poses[1], GT_POSES[1])
+    if min_std == 0:
+        assert t_err > 0.1, t_err  # about half of the 10% of B's depth (0.4 m of 4 m) moved into its position
+    else:
+        assert t_err < 1e-9 and r_err < 1e-9, (t_err, r_err)
+    assert float((res.codes[1]).abs().max()) > 1e-3  # the code takes what it can of the disagreement

@@ -77,11 +77,11 @@ class MemorySequence(Sequence):
         return self.frames[i] if depth else replace(self.frames[i], depth=None)
 
 
-def small_config(**window) -> SLAMConfig:
+def small_config(sfm: dict | None = None, **window) -> SLAMConfig:
     """The defaults with three pyramid levels (a 64x48 image's fourth level is 8x6 pixels) and ``window``
-    fields replaced."""
+    fields replaced (``sfm``: fields of the window's solver settings)."""
     base = SLAMConfig()
-    sfm = replace(base.window.sfm, pyramid_levels=(2, 1, 0), max_iterations=(8, 6, 5))
+    sfm = replace(base.window.sfm, pyramid_levels=(2, 1, 0), max_iterations=(8, 6, 5), **(sfm or {}))
     return replace(
         base,
         tracker=replace(TrackerConfig(), pyramid_levels=(2, 1, 0), max_iterations=(8, 6, 5)),

@@ -108,4 +108,7 @@ def test_the_free_scale_is_refused_with_the_geometric_term_in_proximity(tmp_path
     with pytest.raises(ConfigError, match="free_scale needs window.map_prior_weight: 0"):
         load_config(path)
     path.write_text("window:\n  free_scale: true\n  map_prior_weight: 0\n")
+    with pytest.raises(ConfigError, match="free_scale needs window.sfm.geometric_pose_min_std: 0"):
+        load_config(path)
+    path.write_text("window:\n  free_scale: true\n  map_prior_weight: 0\n  sfm:\n    geometric_pose_min_std: 0\n")
     assert load_config(path).window.free_scale

@@ -337,7 +337,8 @@ def test_a_free_scale_per_keyframe(tmp_path):
 
     frames = synth_frames(3, 16, 7.5)
     seq = MemorySequence(frames)
-    config = small_config(size=3, code_directions=8, free_scale=True, map_prior_weight=0.0)  # measured apart only
+    config = small_config(size=3, code_directions=8, free_scale=True, map_prior_weight=0.0,  # measured apart only
+                          sfm={"geometric_pose_min_std": 0.0})
     system = CodeSLAM(config, standin_depth_model(num_levels=3))
     run = run_slam(seq, system, frames[0].camera)
     ev = evaluate_run(run.trajectory, ground_truth(seq, range(len(seq))))

@@ -28,7 +28,8 @@ def _windows(free_scale: bool, monkeypatch) -> list:
 
     monkeypatch.setattr(window_module.SlidingWindow, "optimise", optimise)
     frames = synth_frames(3, 16, 7.5)
-    config = small_config(size=3, code_directions=8, free_scale=free_scale, map_prior_weight=0.0)
+    config = small_config(size=3, code_directions=8, free_scale=free_scale, map_prior_weight=0.0,
+                          sfm={"geometric_pose_min_std": 0.0})
     system = CodeSLAM(replace(config, dtype="float64"), standin_depth_model(num_levels=3))
     run_slam(MemorySequence(frames), system, frames[0].camera)
     return seen
