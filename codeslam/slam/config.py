@@ -602,7 +602,7 @@ class WindowConfig:
         if self.free_scale and self.map_prior_weight > 0:  # measured apart only; together a test's window diverged
             raise ConfigError("window.free_scale needs window.map_prior_weight: 0 (the two together are not measured)")
         if self.free_scale and self.sfm.geometric_pose_min_std > 0:  # measured apart only; together a test's
-            # window ended with a NaN derivative of the geometric term along its scale (the scale entry's 1 / dgeo_dP)
+            # window ended with a NaN derivative of the geometric term along its scale (scripts/window_scale_terms.py)
             raise ConfigError("window.free_scale needs window.sfm.geometric_pose_min_std: 0 (the two together are not "
                               "measured)")
         if not (isinstance(self.coarse_iterations_after_stop, int) and self.coarse_iterations_after_stop >= -1):
