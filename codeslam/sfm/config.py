@@ -53,6 +53,18 @@ class SfMConfig:
     of scale or layout shared by all pixels) thousands of pixels otherwise count as a precise measurement of the
     camera moving along its axis. 0 switches it off (the default here; the SLAM window's is 0.1,
     :func:`~codeslam.slam.config._default_window_sfm`)."""
+    geometric_pose_regions: int = 1
+    """The spread of ``geometric_pose_min_std`` taken per region: A's image cut into this many cells a side (on
+    every level), each cell's spread gating its own pixels' geometric pose rows. 1: the whole overlap of the pair
+    at once. A view that is only partly blank (a wall beside a textured floor) has a spread above the threshold
+    taken whole, and its blank part's pixels keep their pull on the poses. Not the SLAM window's default
+    (docs/results/slam_table.md, sixty-second session; 1 thread, one run each): there at 4 cells a side and 0.05
+    (a cell spreads less than its view), the runs with the dataset's depth went 0.86x in geometric mean (fast turn
+    14 0.0156 -> 0.0094 m, 2.96 -> 0.60 deg) and the network's 18 suite runs 0.97x (TUM fr1/rpy 0.0145 -> 0.0120
+    m), but every second frame of the HoloLens walk went further off in each of four draws (start frames 0 and 1,
+    1 and 2 threads: 1.06-2.6x), and in the variants measured (0.1; 2 cells; a cell with few pixels seen taking
+    the pair's factor). Taken over all of a cell's pixels it held there (1.09x, 0.95x) and turned fast turn 14
+    with the dataset's depth 15 deg off."""
     geometric_stride: int = 1
     """Geometric residuals on every s-th pixel of every s-th row of the finest level only (level l: s >> l, at
     least 1), each weighted s^2 so the term keeps its weight. The decoded depths are smooth, so the term's
@@ -177,6 +189,8 @@ class SfMConfig:
             raise ConfigError(f"SfM config: geometric_stride must be an integer >= 1, got {self.geometric_stride}")
         if not self.geometric_pose_min_std >= 0:  # "not >=" also refuses NaN
             raise ConfigError(f"SfM config: geometric_pose_min_std must be >= 0, got {self.geometric_pose_min_std}")
+        if self.geometric_pose_regions < 1:
+            raise ConfigError(f"SfM config: geometric_pose_regions must be >= 1, got {self.geometric_pose_regions}")
         if self.geometric_space not in GEOMETRIC_SPACES:
             raise ConfigError(f"SfM config: geometric_space must be one of {GEOMETRIC_SPACES}, "
                               f"got {self.geometric_space!r}")

@@ -35,6 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 
 from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH
 from codeslam.geometry.camera import project_jac
@@ -59,7 +60,8 @@ class PairEvaluation:
     residual's space), v (P, N, 2). row_cost (P, T, N): each valid row's robust cost (0 where masked), set by
     :func:`robust_weights`, which :func:`common_cost_change` compares between two evaluations; cost (P,): the
     pairs' robust cost as the solver priced it (:meth:`~codeslam.sfm.solver.PairProblem.evaluate`).
-    geo_pose_scale (P,): the factor on the geometric rows' pose derivatives (:func:`blank_view_scale`), None for 1.
+    geo_pose_scale (P, N): the factor on the geometric rows' pose derivatives (:func:`blank_view_scale` per pair,
+    :func:`blank_region_scale` per cell), None for 1.
     """
 
     types: tuple[str, ...]
@@ -344,7 +346,13 @@ def evaluate_pairs(
     geo_pose_scale = None
     if cfg.geometric_pose_min_std > 0 and cfg.photometric and cfg.geometric:
         seen = valids[types.index(PHOTOMETRIC)]  # A's pixels the photometric term compares with B
-        geo_pose_scale = blank_view_scale(level.gray[iA].reshape(P, -1), seen, cfg.geometric_pose_min_std)
+        gray_A = level.gray[iA]
+        if cfg.geometric_pose_regions > 1:
+            geo_pose_scale = blank_region_scale(gray_A[:, 0], seen.reshape(P, *gray_A.shape[-2:]),
+                                                cfg.geometric_pose_min_std, cfg.geometric_pose_regions)
+        else:  # one factor per pair, on each of its pixels
+            geo_pose_scale = blank_view_scale(gray_A.reshape(P, -1), seen, cfg.geometric_pose_min_std)
+            geo_pose_scale = geo_pose_scale[:, None].expand(-1, seen.shape[1])
     return PairEvaluation(
         types=types,
         r=r_t,
@@ -377,6 +385,27 @@ def blank_view_scale(gray_A: torch.Tensor, seen: torch.Tensor, min_std: float) -
     mean = (gray_A * m).sum(1) / count
     std = (((gray_A - mean[:, None]) ** 2 * m).sum(1) / count).sqrt()
     return (std / min_std).clamp(max=1.0).square().detach()
+
+
+def blank_region_scale(gray_A: torch.Tensor, seen: torch.Tensor, min_std: float, regions: int) -> torch.Tensor:
+    """(P, N) the factor of :func:`blank_view_scale` per pixel, with the standard deviation of ``gray_A``
+    (P, H, W) taken over the pixels ``seen`` (P, H, W) bool of the pixel's cell: the image cut into ``regions``
+    cells a side (the last row and column of cells smaller where the size does not divide;
+    :attr:`~codeslam.sfm.config.SfMConfig.geometric_pose_regions`)."""
+    P, H, W = gray_A.shape
+    kh, kw = -(-H // regions), -(-W // regions)
+
+    def cell_sums(x: torch.Tensor) -> torch.Tensor:  # (P, H, W) -> (P, cells_y, cells_x)
+        return F.avg_pool2d(x[:, None], (kh, kw), ceil_mode=True, divisor_override=1)[:, 0]
+
+    def per_pixel(x: torch.Tensor) -> torch.Tensor:  # (P, cells_y, cells_x) -> (P, H, W)
+        return x.repeat_interleave(kh, dim=1).repeat_interleave(kw, dim=2)[:, :H, :W]
+
+    m = seen.to(gray_A.dtype)
+    count = cell_sums(m).clamp_min(1.0)
+    mean = per_pixel(cell_sums(gray_A * m) / count)
+    std = (cell_sums((gray_A - mean) ** 2 * m) / count).sqrt()
+    return per_pixel((std / min_std).clamp(max=1.0).square()).reshape(P, H * W).detach()
 
 
 def robust_weights(ev: PairEvaluation, masked_rows: str = "threshold") -> tuple[torch.Tensor, torch.Tensor]:
@@ -496,7 +525,7 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
             J_local[:, i, :, POSE_DIM + AFFINE_DIM:] = torch.cat([dr_dwA, dr_dwB], dim=-1)
         pose_row(dr_dx, x_pose, out=J_local[:, i, :, :POSE_DIM])  # Eqs. 7-8 in SE(3) left form, (P, N, 6)
         if t != PHOTOMETRIC and ev.geo_pose_scale is not None:  # a blank first view: the codes' term only
-            J_local[:, i] *= ev.geo_pose_scale[:, None, None]  # its affine columns are 0
+            J_local[:, i] *= ev.geo_pose_scale[..., None]  # its affine columns are 0
         s_A.append(_dot3(dr_dx, dx_dd) * ev.dd_dprox_A)  # Eq. 9 with dD_A/dc_A = dD/dP J_A[u]
     valid = ev.valid
     # masked rows are zero (their NaN/inf included); by row index: masked_fill_ broadcasting the (P, T, N, 1) mask

@@ -487,7 +487,7 @@ def test_a_blank_first_view_keeps_the_geometric_rows_off_the_poses(problem):
     expected = torch.stack([
         (flat[a, 0].reshape(-1)[seen[p]].std(unbiased=False) / 0.05).clamp(max=1.0) ** 2
         for p, a in enumerate(PAIRS[:, 0].tolist())])
-    torch.testing.assert_close(ev1.geo_pose_scale, expected)
+    torch.testing.assert_close(ev1.geo_pose_scale, expected[:, None].expand(-1, H * W))  # one cell: the pair's
     blank = PAIRS[:, 0] == 1
     assert bool((ev1.geo_pose_scale[blank] < 0.01).all()) and bool((ev1.geo_pose_scale[~blank] == 1).all())
     torch.testing.assert_close(t1.r, t0.r, rtol=0, atol=0)
@@ -497,7 +497,39 @@ def test_a_blank_first_view_keeps_the_geometric_rows_off_the_poses(problem):
     torch.testing.assert_close(t1.J_local[:, 0], t0.J_local[:, 0], rtol=0, atol=0)  # photometric rows
     geo0, geo1 = t0.J_local[:, 1], t1.J_local[:, 1]
     assert geo0[blank].abs().max() > 0
-    torch.testing.assert_close(geo1, geo0 * ev1.geo_pose_scale[:, None, None], rtol=1e-12, atol=0)
+    torch.testing.assert_close(geo1, geo0 * ev1.geo_pose_scale[..., None], rtol=1e-12, atol=0)
     torch.testing.assert_close(geo1[~blank], geo0[~blank], rtol=0, atol=0)
     with pytest.raises(ConfigError, match="geometric_pose_min_std"):
         SfMConfig(geometric_pose_min_std=-0.1)
+
+
+def test_a_partly_blank_first_view_keeps_its_blank_regions_geometric_rows_off_the_poses(problem):
+    """``geometric_pose_regions``: a first view whose left half is blank and right half textured passes the gate
+    taken whole (its spread is the texture's), and cut into cells a side its left half's geometric rows lose their
+    pose derivatives by their cells' ``(std / threshold)^2`` (hand-computed) while the right half's keep them."""
+    level, state = problem
+    _, _, H, W = level.gray.shape
+    half = level.gray.clone()
+    left = half[1, 0, :, : W // 2]
+    half[1, 0, :, : W // 2] = 0.5 + 0.01 * (left - left.mean())
+    level = dataclasses.replace(level, gray=half, gray_grad=image_gradients(half))
+    whole = SfMConfig(gradient_mode="interpolant", geometric_pose_min_std=0.05)
+    cut = dataclasses.replace(whole, geometric_pose_regions=2)
+    ev1 = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, whole)
+    ev2 = evaluate_pairs(level, PAIRS, state.poses, state.codes, state.affine, cut)
+    blank = PAIRS[:, 0] == 1
+    assert bool((ev1.geo_pose_scale[blank] == 1).all())  # taken whole, the view passes
+    seen = ev2.valid[:, 0].reshape(-1, H, W)
+    scale = ev2.geo_pose_scale.reshape(-1, H, W)
+    for p in blank.nonzero().squeeze(1).tolist():
+        for ys, xs in ((slice(0, H // 2), slice(0, W // 2)), (slice(H // 2, H), slice(0, W // 2))):
+            std = half[1, 0][ys, xs][seen[p][ys, xs]].std(unbiased=False)
+            torch.testing.assert_close(scale[p][ys, xs], ((std / 0.05).clamp(max=1.0) ** 2).expand(H // 2, W // 2))
+            assert float(scale[p][ys, xs].max()) < 0.01
+        assert bool((scale[p][:, W // 2:] == 1).all())
+    assert bool((scale[~blank] == 1).all())
+    t1, t2 = pair_jacobians(level, PAIRS, ev1), pair_jacobians(level, PAIRS, ev2)
+    torch.testing.assert_close(t2.J_local[:, 1], t1.J_local[:, 1] * ev2.geo_pose_scale[..., None], rtol=1e-12, atol=0)
+    torch.testing.assert_close(t2.s_A, t1.s_A, rtol=0, atol=0)
+    with pytest.raises(ConfigError, match="geometric_pose_regions"):
+        SfMConfig(geometric_pose_regions=0)
