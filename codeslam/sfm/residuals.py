@@ -309,7 +309,8 @@ def evaluate_pairs(
         w_occ = torch.where(occluded.detach(), cfg.occlusion_weight * ones, ones)
     for t in types:
         if t == PHOTOMETRIC:
-            r = level.gray[iA].reshape(P, -1) - (gain * gray_B + bias)  # Eq. 13 with affine brightness (Sec. 5.2)
+            gray_A = level.gray[iA]  # (P, 1, H, W), also the blank-view gate's below
+            r = gray_A.reshape(P, -1) - (gain * gray_B + bias)  # Eq. 13 with affine brightness (Sec. 5.2)
             if weights is None:
                 fixed.append(w_slant * w_occ)
                 sigmas.append(cfg.sigma_photometric * ones)
@@ -346,7 +347,6 @@ def evaluate_pairs(
     geo_pose_scale = None
     if cfg.geometric_pose_min_std > 0 and cfg.photometric and cfg.geometric:
         seen = valids[types.index(PHOTOMETRIC)]  # A's pixels the photometric term compares with B
-        gray_A = level.gray[iA]
         if cfg.geometric_pose_regions > 1:
             geo_pose_scale = blank_region_scale(gray_A[:, 0], seen.reshape(P, *gray_A.shape[-2:]),
                                                 cfg.geometric_pose_min_std, cfg.geometric_pose_regions)
