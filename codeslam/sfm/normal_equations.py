@@ -115,18 +115,18 @@ def assemble(
     pair_list = [(int(a), int(b)) for a, b in pairs.tolist()]  # host copy: one transfer, no per-pair syncs
     w, r = terms.w, terms.r  # (P, T, N)
     rs = terms.J_rs is not None
-    # (P, T, N, L) dense columns [xi_BA, a, b] (L = 8), then [omega_A, omega_B] with a rolling shutter (L = 14)
+    # (P, L, T, N) dense columns [xi_BA, a, b] (L = 8), then [omega_A, omega_B] with a rolling shutter (L = 14)
     Jd = terms.J_local
-    L = Jd.shape[-1]
+    L = Jd.shape[1]
     # (F, N, C) J_A of every frame, a view of the channels-last copy: the pixel rows that the geometric term
     # picks for H_{c_A c_B} are gathered as whole rows (measured at C = 128, 8,000 of 12,288 pixels, one thread:
     # 2.3 ms for the columns of the (C, N) layout, 0.35 ms for the rows of this one)
     Gt = level.jac_channels_last.permute(0, 2, 3, 1).reshape(F_, N, C)
 
     with clock("gemm"):
-        Jd_flat = Jd.reshape(P, T * N, L)
-        H_dd = Jd_flat.transpose(1, 2) @ ((w.reshape(P, T * N, 1)) * Jd_flat)  # (P, L, L)
-    g_d = batched_mv(Jd_flat.transpose(1, 2), (w * r).reshape(P, T * N))  # (P, L)
+        Jd_flat = Jd.reshape(P, L, T * N)
+        H_dd = Jd_flat @ (w.reshape(P, 1, T * N) * Jd_flat).transpose(1, 2)  # (P, L, L)
+    g_d = batched_mv(Jd_flat, (w * r).reshape(P, T * N))  # (P, L)
     Q = local_to_absolute(poses.to(dtype), pairs, rs)  # (P, L, L + 6)
     H_loc = Q.transpose(1, 2) @ H_dd @ Q  # (P, L + 6, L + 6) over [pose A, pose B, affine, (rs A, rs B)]
     g_loc = (Q.transpose(1, 2) @ g_d.unsqueeze(-1)).squeeze(-1)  # (P, L + 6)
@@ -148,7 +148,7 @@ def assemble(
         onehot = torch.nn.functional.one_hot(iA, F_).to(dtype).transpose(0, 1)  # (F, P): sums pairs per frame A
         q = onehot @ (ws_A * terms.s_A).sum(1)  # (F, N), sum over pairs and types of w s_A^2
         gr = onehot @ (ws_A * r).sum(1)  # (F, N), sum of w s_A r
-        M = (ws_A.unsqueeze(-1) * Jd).sum(1)  # (P, N, L), w s_A J_dense summed over types
+        M = (ws_A.unsqueeze(1) * Jd).sum(2)  # (P, L, N), w s_A J_dense summed over types
         H_Ad = H.new_zeros(P, C, L)
         for f in frames:
             sl = code_A_free[f]
@@ -157,7 +157,7 @@ def assemble(
             g[sl] += Gt[f].T @ gr[f]
             at = torch.nonzero(iA == f).squeeze(1)  # the pairs in which f is A
             with clock("gemm"):  # J_A^T (w s_A J_dense), (C, L) per pair
-                H_Ad[at] = (Gt[f].T @ M[at].transpose(0, 1).reshape(N, -1)).reshape(C, len(at), L).transpose(0, 1)
+                H_Ad[at] = (M[at].reshape(-1, N) @ Gt[f]).reshape(len(at), L, C).transpose(1, 2)
         H_Aloc = H_Ad @ Q  # (P, C, K)
         Hl[:, K:K + C, :K] = H_Aloc
         Hl[:, :K, K:K + C] = H_Aloc.transpose(1, 2)
@@ -173,7 +173,7 @@ def assemble(
             wk, sBk = wg[p, k], sB_g[p, k]
             with clock("gemm"):
                 Hl[p, K + C:, K + C:] = (JB * (wk * sBk * sBk)) @ JB.T  # J_B[v]^T diag(w s_B^2) J_B[v]
-                H_Bloc = (JB @ ((wk * sBk).unsqueeze(-1) * Jd[p, tg, k])) @ Q[p]  # (C, K)
+                H_Bloc = ((Jd[p, :, tg].index_select(1, k) * (wk * sBk)) @ JB.T).T @ Q[p]  # (C, K)
                 if code_A_free[a] is not None:  # J_A^T diag(w s_A s_B) J_B[v]
                     GA = Gt[a].index_select(0, k).mul_((wk * sA_g[p, k] * sBk).unsqueeze(-1))  # (M, C)
                     H_AB = GA.T @ JB.T
@@ -199,7 +199,7 @@ def dense_jacobian(terms: PairTerms, pairs: torch.Tensor, poses: torch.Tensor, l
     J = torch.zeros(P, T, N, layout.dim, dtype=terms.r.dtype, device=terms.r.device)
     rs = terms.J_rs is not None
     Q = local_to_absolute(poses.to(terms.r.dtype), pairs, rs)
-    J_loc = terms.J_local @ Q.unsqueeze(1)
+    J_loc = terms.J_rows @ Q.unsqueeze(1)
     G = level.jac.reshape(level.num_frames, C, N).transpose(1, 2)  # (F, N, C)
     for p, (a, b) in enumerate(pairs.tolist()):
         for bid, i0, i1 in _local_blocks(a, b, p, rs):

@@ -494,8 +494,8 @@ def test_a_blank_first_view_keeps_the_geometric_rows_off_the_poses(problem):
     torch.testing.assert_close(t1.cost, t0.cost, rtol=0, atol=0)
     for name in ("s_A", "s_B"):
         torch.testing.assert_close(getattr(t1, name), getattr(t0, name), rtol=0, atol=0)
-    torch.testing.assert_close(t1.J_local[:, 0], t0.J_local[:, 0], rtol=0, atol=0)  # photometric rows
-    geo0, geo1 = t0.J_local[:, 1], t1.J_local[:, 1]
+    torch.testing.assert_close(t1.J_rows[:, 0], t0.J_rows[:, 0], rtol=0, atol=0)  # photometric rows
+    geo0, geo1 = t0.J_rows[:, 1], t1.J_rows[:, 1]
     assert geo0[blank].abs().max() > 0
     torch.testing.assert_close(geo1, geo0 * ev1.geo_pose_scale[..., None], rtol=1e-12, atol=0)
     torch.testing.assert_close(geo1[~blank], geo0[~blank], rtol=0, atol=0)
@@ -529,7 +529,7 @@ def test_a_partly_blank_first_view_keeps_its_blank_regions_geometric_rows_off_th
         assert bool((scale[p][:, W // 2:] == 1).all())
     assert bool((scale[~blank] == 1).all())
     t1, t2 = pair_jacobians(level, PAIRS, ev1), pair_jacobians(level, PAIRS, ev2)
-    torch.testing.assert_close(t2.J_local[:, 1], t1.J_local[:, 1] * ev2.geo_pose_scale[..., None], rtol=1e-12, atol=0)
+    torch.testing.assert_close(t2.J_rows[:, 1], t1.J_rows[:, 1] * ev2.geo_pose_scale[..., None], rtol=1e-12, atol=0)
     torch.testing.assert_close(t2.s_A, t1.s_A, rtol=0, atol=0)
     with pytest.raises(ConfigError, match="geometric_pose_regions"):
         SfMConfig(geometric_pose_regions=0)
