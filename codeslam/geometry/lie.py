@@ -268,6 +268,13 @@ def _split_points(T: torch.Tensor, p: torch.Tensor) -> tuple[torch.Tensor, torch
     return R.expand(batch + (3, 3)), t.expand(batch + (3,)), p_flat, batch + pts
 
 
+def so3_act(R: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+    """Rotate points: R (*B, 3, 3), p (*B, M, 3) -> (*B, M, 3) ``R p`` for every point, formed as ``(R P^T)^T`` with
+    P the (M, 3) points. Written for a measured reason: torch's CPU bmm of (M, 3) by (3, 3), ``p @ R^T``, took 1.19 ms
+    for 6 x 12,288 points against 0.34 ms this way (2 threads, AMD Zen 3), with the same values."""
+    return (R @ p.transpose(-1, -2)).transpose(-1, -2)
+
+
 def se3_act(T: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     """Transform points: ``T p = R p + t``.
 
@@ -277,9 +284,7 @@ def se3_act(T: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
     work. Returns (*b, *P, 3).
     """
     R, t, p_flat, out_shape = _split_points(T, p)
-    # R p for every point as (R P^T)^T, P the (M, 3) points: torch's CPU bmm of (M, 3) by (3, 3) took 1.19 ms for
-    # 6 x 12,288 points against 0.34 ms this way (2 threads, AMD Zen 3), with the same values
-    out = (R @ p_flat.transpose(-1, -2)).transpose(-1, -2) + t.unsqueeze(-2)  # (*B, M, 3)
+    out = so3_act(R, p_flat) + t.unsqueeze(-2)  # (*B, M, 3)
     return out.reshape(out_shape + (3,))
 
 

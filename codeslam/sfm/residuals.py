@@ -40,6 +40,7 @@ import torch.nn.functional as F
 from codeslam.constants import BILINEAR_ALL_VALID, MIN_DEPTH
 from codeslam.geometry.camera import project_jac
 from codeslam.geometry.image import bilinear_sample, image_gradients, inside_image, slant_cosine
+from codeslam.geometry.lie import so3_act
 from codeslam.geometry.proximity import d_depth_d_prox, d_prox_d_depth, depth_to_prox, prox_to_depth
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.keyframes import LevelData
@@ -503,7 +504,7 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
     dtype = ev.r.dtype
     iB = pairs[:, 1]
     dpi = project_jac(ev.x_B, level.params[iB][:, None])  # (P, N, 2, 3), d pi / d x
-    dx_dd = (ev.T_BA[:, :3, :3] @ ev.ray_A.transpose(1, 2)).transpose(1, 2)  # Eq. 9: R d pi^-1 / d d, (P, N, 3)
+    dx_dd = so3_act(ev.T_BA[:, :3, :3], ev.ray_A)  # Eq. 9: R d pi^-1 / d d, (P, N, 3)
     e_z = torch.tensor([0.0, 0.0, 1.0], dtype=dtype, device=ev.r.device)
     s_A, s_B = [], []
     x_pose = ev.x_B if ev.rs is None else ev.rs.x_c  # the point the relative pose moves

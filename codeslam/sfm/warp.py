@@ -19,7 +19,7 @@ from __future__ import annotations
 import torch
 
 from codeslam.geometry.camera import project, project_jac, unproject_jac_depth
-from codeslam.geometry.lie import hat, se3_act, se3_adjoint, se3_inverse
+from codeslam.geometry.lie import hat, se3_act, se3_adjoint, se3_inverse, so3_act
 
 
 def relative_pose(T_wA: torch.Tensor, T_wB: torch.Tensor) -> torch.Tensor:
@@ -94,7 +94,7 @@ def rolling_shutter_rows(
     """
     dr_dxc = dr_dx - s_B.unsqueeze(-1) * torch.linalg.cross(dr_dx, omega_B.expand_as(dr_dx), dim=-1)
     dr_dwB = s_B.unsqueeze(-1) * torch.linalg.cross(dr_dx, x_c, dim=-1)
-    aR = dr_dxc @ T_BA[..., :3, :3]  # the row a_c R, (P, N, 3)
+    aR = so3_act(T_BA[..., :3, :3].transpose(-1, -2), dr_dxc)  # the row a_c R = R^T a_c, (P, N, 3)
     dr_dwA = -(depth_A * s_A).unsqueeze(-1) * torch.linalg.cross(aR, ray0, dim=-1)
     return dr_dxc, dr_dwA, dr_dwB
 
@@ -112,7 +112,7 @@ def point_jacobians(x_B: torch.Tensor, ray_A: torch.Tensor, T_BA: torch.Tensor) 
     # The paper perturbs (R, t) separately; the SE(3) left increment exp(xi) T also moves the translation,
     # t <- t + rho + phi x t, which adds -t^ to the rotation column: d x / d phi = -(R p + t)^ = -x^.
     dx_dxi = torch.cat([dx_dt, dx_dR - hat(t).expand(dx_dR.shape)], dim=-1)  # (P, N, 3, 6)
-    dx_dd = ray_A @ T_BA[..., :3, :3].transpose(-1, -2)  # Eq. 9: R d pi^-1(u, d) / d d, (P, N, 3)
+    dx_dd = so3_act(T_BA[..., :3, :3], ray_A)  # Eq. 9: R d pi^-1(u, d) / d d, (P, N, 3)
     return dx_dxi, dx_dd
 
 
