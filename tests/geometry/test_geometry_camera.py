@@ -36,6 +36,15 @@ def test_project_jac_against_autograd():
     assert torch.allclose(project_jac(xyz, PARAMS), J, atol=1e-10)
 
 
+def test_project_jac_channels_first_is_the_same_jacobian():
+    params = torch.stack([PARAMS, PARAMS * 0.5])[:, None]  # (2, 1, 4): one camera per batch element
+    xyz = _points(14, 5).reshape(2, 7, 3)
+    rows = project_jac(xyz, params)  # (2, 7, 2, 3)
+    columns = project_jac(xyz.transpose(1, 2).contiguous(), params, dim=-2)  # (2, 2, 3, 7)
+    assert columns.shape == (2, 2, 3, 7)
+    assert torch.equal(columns, rows.permute(0, 2, 3, 1))
+
+
 def test_unproject_jac_depth_against_autograd():
     g = torch.Generator().manual_seed(1)
     uv = torch.rand(40, 2, generator=g, dtype=F64) * torch.tensor([640.0, 480.0], dtype=F64)
