@@ -536,10 +536,10 @@ def pair_jacobians(level: LevelData, pairs: torch.Tensor, ev: PairEvaluation, wi
             s_B.append(-ev.dgeo_dprox_B)  # d r_geo / d c_B = -df/dP J_B[v]
         if ev.rs is not None:  # through B's readout rotation to x_c, and the rows of omega_A, omega_B
             rw = ev.rs
-            dr_dxc, dr_dwA, dr_dwB = rolling_shutter_rows(dr_dx.transpose(1, 2), rw.x_c, rw.ray0, rw.depth_A,
-                                                          ev.T_BA, rw.omega_B, rw.s_A, rw.s_B)
-            dr_dx = dr_dxc.transpose(1, 2)
-            J_local[:, POSE_DIM + AFFINE_DIM:, i] = torch.cat([dr_dwA, dr_dwB], dim=-1).transpose(1, 2)
+            dr_dx, dr_dwA, dr_dwB = rolling_shutter_rows(dr_dx, rw.x_c, rw.ray0, rw.depth_A, ev.T_BA, rw.omega_B,
+                                                         rw.s_A, rw.s_B)
+            J_local[:, POSE_DIM + AFFINE_DIM:POSE_DIM + AFFINE_DIM + RS_DIM, i] = dr_dwA
+            J_local[:, POSE_DIM + AFFINE_DIM + RS_DIM:, i] = dr_dwB
         pose_columns(dr_dx, x_pose, out=J_local[:, :POSE_DIM, i])  # Eqs. 7-8 in SE(3) left form
         if t != PHOTOMETRIC and ev.geo_pose_scale is not None:  # a blank first view: the codes' term only
             J_local[:, :, i] *= ev.geo_pose_scale[:, None]  # its affine columns are 0

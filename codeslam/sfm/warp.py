@@ -85,18 +85,35 @@ def rolling_shutter_rows(
     omega_B: torch.Tensor, s_A: torch.Tensor, s_B: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Chain rule through :func:`warp_rolling_shutter` for a scalar residual with ``dr_dx`` = d r / d x_B
-    (P, N, 3) -> d r / d x_c (P, N, 3) (what the pose and depth rows use), d r / d omega_A and d r / d omega_B
-    (P, N, 3 each).
+    (P, 3, N), channels first -> d r / d x_c (P, 3, N) (what the pose and depth rows use), d r / d omega_A and
+    d r / d omega_B (P, 3, N each). x_c, ray0 (P, N, 3) and omega_B (P, 1, 3) as the warp gives them.
 
     ``d x_B / d x_c = I - s_B [omega_B]_x`` gives the row ``a - s_B (a x omega_B)``; ``d x_B / d omega_B = s_B
     [x_c]_x`` gives ``s_B (a x x_c)``; ``d x_c / d omega_A = -d s_A R [ray0]_x`` gives ``-d s_A ((R^T a_c) x
-    ray0)`` (for a row b, ``b [y]_x = (b x y)^T``).
+    ray0)`` (for a row b, ``b [y]_x = (b x y)^T``). Channels first as the pair Jacobians are
+    (:func:`~codeslam.sfm.residuals.pair_jacobians`; the same values as over (P, N, 3) rows).
     """
-    dr_dxc = dr_dx - s_B.unsqueeze(-1) * torch.linalg.cross(dr_dx, omega_B.expand_as(dr_dx), dim=-1)
-    dr_dwB = s_B.unsqueeze(-1) * torch.linalg.cross(dr_dx, x_c, dim=-1)
-    aR = so3_act(T_BA[..., :3, :3].transpose(-1, -2), dr_dxc)  # the row a_c R = R^T a_c, (P, N, 3)
-    dr_dwA = -(depth_A * s_A).unsqueeze(-1) * torch.linalg.cross(aR, ray0, dim=-1)
+    s_B, s_A = s_B.unsqueeze(-2), (depth_A * s_A).unsqueeze(-2)  # (P, 1, N)
+    dr_dxc = dr_dx - s_B * cross_columns(dr_dx, omega_B.transpose(-1, -2))
+    dr_dwB = s_B * cross_columns(dr_dx, x_c.transpose(-1, -2))
+    aR = T_BA[..., :3, :3].transpose(-1, -2) @ dr_dxc  # the row a_c R = R^T a_c, (P, 3, N)
+    dr_dwA = -s_A * cross_columns(aR, ray0.transpose(-1, -2))
     return dr_dxc, dr_dwA, dr_dwB
+
+
+def cross_columns(a: torch.Tensor, b: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """``a x b`` over dimension -2 of (..., 3, N) tensors (broadcasting, e.g. b (..., 3, 1)), each component
+    ``a_j b_k - a_k b_j`` in one fused multiply-add (``addcmul``) as ``torch.linalg.cross`` rounds it on the CPU,
+    into ``out`` when given. Written for a measured reason: ``linalg.cross`` over that dimension, or over (..., N, 3)
+    rows of 3, runs a scalar loop (1.0 against 0.28 ms for 6 x 12,288 points, 2 threads, AMD Zen 3)."""
+    a0, a1, a2 = a.unbind(-2)
+    b0, b1, b2 = b.unbind(-2)
+    if out is None:
+        out = torch.empty(torch.broadcast_shapes(a.shape, b.shape), dtype=a.dtype, device=a.device)
+    torch.addcmul(-(a2 * b1), a1, b2, out=out[..., 0, :])
+    torch.addcmul(-(a0 * b2), a2, b0, out=out[..., 1, :])
+    torch.addcmul(-(a1 * b0), a0, b1, out=out[..., 2, :])
+    return out
 
 
 def point_jacobians(x_B: torch.Tensor, ray_A: torch.Tensor, T_BA: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -133,18 +150,11 @@ def pose_columns(dr_dx: torch.Tensor, x_B: torch.Tensor, out: torch.Tensor) -> t
     returned), e.g. the pose columns of a larger Jacobian: concatenating and then copying took 3.1 ms for 12 pairs
     of 128x96 pixels against 2.1 written in place (2 threads).
 
-    The cross product by its components, each ``x_j a_k - x_k a_j`` in one fused multiply-add (``addcmul``), as
-    ``torch.linalg.cross`` rounds it on the CPU: ``linalg.cross`` over the channel dimension of (P, 3, N) tensors,
-    or over (P, N, 3) rows of 3 written into the columns, took 1.0 ms for 6 x 12,288 points against 0.28 ms
-    (2 threads, AMD Zen 3; the same values).
-    One cross product with x itself: the two of (R p) x a + t x a, and R p = x - t, took 1.0-2.3 ms against 0.5.
+    The cross product by :func:`cross_columns`. One cross product with x itself: the two of (R p) x a + t x a,
+    and R p = x - t, took 1.0-2.3 ms against 0.5.
     """
     out[..., :3, :] = dr_dx
-    x0, x1, x2 = x_B.unbind(-2)
-    a0, a1, a2 = dr_dx.unbind(-2)
-    torch.addcmul(-(x2 * a1), x1, a2, out=out[..., 3, :])  # x x a
-    torch.addcmul(-(x0 * a2), x2, a0, out=out[..., 4, :])
-    torch.addcmul(-(x1 * a0), x0, a1, out=out[..., 5, :])
+    cross_columns(x_B, dr_dx, out=out[..., 3:, :])  # x x a
     return out
 
 
