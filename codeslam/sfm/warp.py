@@ -94,11 +94,11 @@ def rolling_shutter_rows(
     ray0)`` (for a row b, ``b [y]_x = (b x y)^T``). Channels first as the pair Jacobians are
     (:func:`~codeslam.sfm.residuals.pair_jacobians`; the same values as over (P, N, 3) rows).
     """
-    s_B, s_A = s_B.unsqueeze(-2), (depth_A * s_A).unsqueeze(-2)  # (P, 1, N)
-    dr_dxc = dr_dx - s_B * cross_columns(dr_dx, omega_B.transpose(-1, -2))
-    dr_dwB = s_B * cross_columns(dr_dx, x_c.transpose(-1, -2))
+    sB, dsA = s_B.unsqueeze(-2), (depth_A * s_A).unsqueeze(-2)  # (P, 1, N): s_B and d s_A
+    dr_dxc = dr_dx - sB * cross_columns(dr_dx, omega_B.transpose(-1, -2))
+    dr_dwB = sB * cross_columns(dr_dx, x_c.transpose(-1, -2))
     aR = T_BA[..., :3, :3].transpose(-1, -2) @ dr_dxc  # the row a_c R = R^T a_c, (P, 3, N)
-    dr_dwA = -s_A * cross_columns(aR, ray0.transpose(-1, -2))
+    dr_dwA = -dsA * cross_columns(aR, ray0.transpose(-1, -2))
     return dr_dxc, dr_dwA, dr_dwB
 
 

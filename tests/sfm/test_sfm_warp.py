@@ -8,6 +8,7 @@ from sfm_scene import look_pose, render
 from codeslam.geometry.camera import canonical_camera, project, unproject
 from codeslam.geometry.lie import se3_act, se3_exp, se3_inverse
 from codeslam.sfm.warp import (
+    cross_columns,
     point_jacobians,
     pose_row,
     relative_pose,
@@ -101,6 +102,19 @@ def test_relative_pose_jacobians_are_the_adjoint_chain():
     zero = torch.zeros(6, dtype=D)
     torch.testing.assert_close(dA, torch.autograd.functional.jacobian(rel_A, zero))
     torch.testing.assert_close(dB, torch.autograd.functional.jacobian(rel_B, zero))
+
+
+def test_cross_columns_is_the_cross_product_over_the_channel_dimension():
+    g = torch.Generator().manual_seed(6)
+    a = torch.randn(2, 3, 7, generator=g, dtype=D)
+    b = torch.randn(2, 3, 7, generator=g, dtype=D)
+    omega = torch.randn(2, 3, 1, generator=g, dtype=D)  # one vector per batch element, broadcast over the points
+    torch.testing.assert_close(cross_columns(a, b), torch.linalg.cross(a, b, dim=-2))
+    torch.testing.assert_close(cross_columns(a, omega), torch.linalg.cross(a, omega.expand_as(a), dim=-2))
+    out = torch.full((2, 6, 7), float("nan"), dtype=D)
+    assert cross_columns(b, a, out=out[:, 3:]).data_ptr() == out[:, 3:].data_ptr()  # written in place
+    torch.testing.assert_close(out[:, 3:], torch.linalg.cross(b, a, dim=-2))
+    assert out[:, :3].isnan().all()  # and nowhere else
 
 
 def test_pose_row_equals_a_row_times_the_point_jacobian():
