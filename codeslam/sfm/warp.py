@@ -135,25 +135,17 @@ def point_jacobians(x_B: torch.Tensor, ray_A: torch.Tensor, T_BA: torch.Tensor) 
     return dx_dxi, dx_dd
 
 
-def pose_row(dr_dx: torch.Tensor, x_B: torch.Tensor) -> torch.Tensor:
-    """``dr_dx @ (d x / d xi_BA)`` without forming the (P, N, 3, 6) Jacobian of :func:`point_jacobians`.
-
-    dr_dx (P, N, 3) the derivative of a scalar residual w.r.t. the warped point x_B = R p + t (P, N, 3)
-    -> (P, N, 6). For a row a: ``a^T (-y)^x = (y x a)^T``, so Eq. 7 gives ``a`` and Eq. 8 ``(R p) x a``; the SE(3)
-    left increment adds ``t x a`` (see :func:`point_jacobians`), in total ``[a, x x a]``. Channels first:
-    :func:`pose_columns`.
-    """
-    out = dr_dx.new_empty(dr_dx.shape[:-2] + (6, dr_dx.shape[-2]))
-    return pose_columns(dr_dx.transpose(-1, -2), x_B.transpose(-1, -2), out).transpose(-1, -2)
-
-
 def pose_columns(dr_dx: torch.Tensor, x_B: torch.Tensor, out: torch.Tensor) -> torch.Tensor:
-    """:func:`pose_row` channels first: dr_dx, x_B (..., 3, N) -> ``[a, x x a]`` written into ``out`` (..., 6, N) (and
-    returned), e.g. the pose columns of a larger Jacobian: concatenating and then copying took 3.1 ms for 12 pairs
-    of 128x96 pixels against 2.1 written in place (2 threads).
+    """``dr_dx @ (d x / d xi_BA)`` without forming the (P, N, 3, 6) Jacobian of :func:`point_jacobians`, channels
+    first: dr_dx (..., 3, N) the derivative of a scalar residual w.r.t. the warped point x_B = R p + t (..., 3, N)
+    -> its six pose columns written into ``out`` (..., 6, N) (and returned), e.g. the pose columns of a larger
+    Jacobian: concatenating and then copying took 3.1 ms for 12 pairs of 128x96 pixels against 2.1 written in place
+    (2 threads).
 
-    The cross product by :func:`cross_columns`. One cross product with x itself: the two of (R p) x a + t x a,
-    and R p = x - t, took 1.0-2.3 ms against 0.5.
+    For a row a: ``a^T (-y)^x = (y x a)^T``, so Eq. 7 gives ``a`` and Eq. 8 ``(R p) x a``; the SE(3) left increment
+    adds ``t x a`` (see :func:`point_jacobians`), in total ``[a, x x a]``. The cross product by
+    :func:`cross_columns`. One cross product with x itself: the two of (R p) x a + t x a, and R p = x - t, took
+    1.0-2.3 ms against 0.5.
     """
     out[..., :3, :] = dr_dx
     cross_columns(x_B, dr_dx, out=out[..., 3:, :])  # x x a

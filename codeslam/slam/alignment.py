@@ -386,7 +386,7 @@ class KeypointTerm:
 
     def jacobian(self, x: torch.Tensor) -> torch.Tensor:
         """x (3, M) the points in B -> (6, 2, M) ``d r / d xi_BA`` (left increment of T_BA): each residual row a
-        (a row of d pi / d x) gives ``[a, x x a]`` (Eqs. 7-8, as :func:`~codeslam.sfm.warp.pose_row`)."""
+        (a row of d pi / d x) gives ``[a, x x a]`` (Eqs. 7-8, as :func:`~codeslam.sfm.warp.pose_columns`)."""
         fx, fy = self._intrinsics[:2]
         J = x.new_zeros((POSE_DIM, 2, x.shape[1]))  # written in place: no stacks of copies
         inv_z = 1.0 / x[2]

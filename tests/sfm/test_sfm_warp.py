@@ -10,7 +10,7 @@ from codeslam.geometry.lie import se3_act, se3_exp, se3_inverse
 from codeslam.sfm.warp import (
     cross_columns,
     point_jacobians,
-    pose_row,
+    pose_columns,
     relative_pose,
     relative_pose_jacobians,
     warp,
@@ -117,9 +117,11 @@ def test_cross_columns_is_the_cross_product_over_the_channel_dimension():
     assert out[:, :3].isnan().all()  # and nowhere else
 
 
-def test_pose_row_equals_a_row_times_the_point_jacobian():
+def test_pose_columns_equal_a_row_times_the_point_jacobian():
     T_BA, uv, depth, params = _random_setup(seed=4)
     _, x, ray = warp(uv, depth, T_BA, params, params)
     dx_dxi, _ = point_jacobians(x, ray, T_BA)
     a = torch.randn(x.shape, generator=torch.Generator().manual_seed(5), dtype=D)
-    torch.testing.assert_close(pose_row(a, x), (a.unsqueeze(-2) @ dx_dxi).squeeze(-2))
+    out = torch.empty(x.shape[0], 6, x.shape[1], dtype=D)  # (P, 6, N) columns
+    pose_columns(a.transpose(1, 2), x.transpose(1, 2), out)
+    torch.testing.assert_close(out.transpose(1, 2), (a.unsqueeze(-2) @ dx_dxi).squeeze(-2))
