@@ -20,6 +20,7 @@ order with left perturbations, plain tensors and batched Jacobians in one consis
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 
@@ -158,7 +159,13 @@ def se3_exp_host(xi: torch.Tensor) -> torch.Tensor:
     closed forms, series and thresholds) and returned as a (4, 4) tensor of ``xi``'s dtype and device. For the
     retraction of a small solver, where ``se3_exp``'s ~60 tensor operations on six numbers cost about ten times
     more than this (one device-to-host copy of ``xi``, one host-to-device copy of the result)."""
-    r1, r2, r3, p1, p2, p3 = xi.tolist()
+    return torch.tensor(se3_exp_floats(xi.tolist()), dtype=xi.dtype, device=xi.device)
+
+
+def se3_exp_floats(xi: Sequence[float]) -> list[list[float]]:
+    """:func:`se3_exp_host`'s arithmetic on six Python floats ``(rho, phi)`` -> the 4x4 transform as rows of
+    floats, for a solver that keeps its state on the host (:mod:`codeslam.slam.alignment`)."""
+    r1, r2, r3, p1, p2, p3 = xi
     t2 = p1 * p1 + p2 * p2 + p3 * p3
     if t2 < SMALL_ANGLE**2:
         A, B = 1.0 - t2 / 6.0, 0.5 - t2 / 24.0
@@ -176,8 +183,7 @@ def se3_exp_host(xi: torch.Tensor) -> torch.Tensor:
     R = [[float(i == j) + A * W[i][j] + B * W2[i][j] for j in range(3)] for i in range(3)]
     V = [[float(i == j) + B * W[i][j] + C * W2[i][j] for j in range(3)] for i in range(3)]  # J_l(phi)
     t_ = [V[i][0] * rho[0] + V[i][1] * rho[1] + V[i][2] * rho[2] for i in range(3)]
-    rows = [[*R[i], t_[i]] for i in range(3)] + [[0.0, 0.0, 0.0, 1.0]]
-    return torch.tensor(rows, dtype=xi.dtype, device=xi.device)
+    return [[*R[i], t_[i]] for i in range(3)] + [[0.0, 0.0, 0.0, 1.0]]
 
 
 def se3_log(T: torch.Tensor) -> torch.Tensor:
@@ -203,7 +209,13 @@ def se3_log_host(T: torch.Tensor) -> torch.Tensor:
     quaternion route, series and thresholds) and returned as a (6,) tensor of ``T``'s dtype and device: for a
     prior on a pose inside a small solver, where ``se3_log``'s tensor operations on one 4x4 matrix cost more than
     the tracker's other work per iteration (a motion prior so written made tracking 40% slower, TUM fr1/rpy)."""
-    (r00, r01, r02, t0), (r10, r11, r12, t1), (r20, r21, r22, t2), _ = T.tolist()
+    return torch.tensor(se3_log_floats(T.tolist()), dtype=T.dtype, device=T.device)
+
+
+def se3_log_floats(T: Sequence[Sequence[float]]) -> list[float]:
+    """:func:`se3_log_host`'s arithmetic on a 4x4 transform given as rows of Python floats -> ``(rho, phi)`` as six
+    floats, for a solver that keeps its state on the host (:mod:`codeslam.slam.alignment`)."""
+    (r00, r01, r02, t0), (r10, r11, r12, t1), (r20, r21, r22, t2), _ = T
     tr = r00 + r11 + r22  # Shepperd's method: the quaternion from the largest of its four squared components
     if tr > 0.0:
         k = 2.0 * math.sqrt(tr + 1.0)
@@ -240,7 +252,7 @@ def se3_log_host(T: torch.Tensor) -> torch.Tensor:
     Jinv = [[float(i == j) - 0.5 * W[i][j] + D * W2[i][j] for j in range(3)] for i in range(3)]  # J_l(phi)^-1
     t = (t0, t1, t2)
     rho = [Jinv[i][0] * t[0] + Jinv[i][1] * t[1] + Jinv[i][2] * t[2] for i in range(3)]
-    return torch.tensor([*rho, *phi], dtype=T.dtype, device=T.device)
+    return [*rho, *phi]
 
 
 def se3_inverse(T: torch.Tensor) -> torch.Tensor:

@@ -5,7 +5,9 @@ The solver drives any *problem* with two methods (duck-typed, see :class:`PairPr
 
 * ``evaluate(state) -> (cost: float, cache)``: the total cost at ``state``;
 * ``linearize(state, cache, layout, clock) -> (H, g)``: normal equations over ``layout``'s free blocks at the
-  state ``cache`` was evaluated at, with ``g`` the gradient of the cost and ``H`` its Gauss-Newton Hessian.
+  state ``cache`` was evaluated at, with ``g`` the gradient of the cost and ``H`` its Gauss-Newton Hessian: tensors,
+  or float64 NumPy arrays for a problem of a few variables that keeps its state on the host (the tracker's 8,
+  where each tensor operation on an 8x8 matrix costs more than the arithmetic), solved there too;
 
 so the SLAM back-end (pairs of the window + a :class:`~codeslam.sfm.variables.LinearPrior` from
 marginalisation) and the tracker (photometric pairs, only the current pose free) reuse it unchanged.
@@ -19,6 +21,7 @@ from collections.abc import Callable, Container, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
 import torch
 
 from codeslam.clock import NO_CLOCK, Clock
@@ -107,11 +110,14 @@ class LMReport:
     reason: str = ""
 
 
-def solve_damped(H: torch.Tensor, g: torch.Tensor, damping: float, min_diagonal: float,
-                 weights: torch.Tensor | None = None) -> torch.Tensor | None:
+def solve_damped(H: torch.Tensor | np.ndarray, g: torch.Tensor | np.ndarray, damping: float, min_diagonal: float,
+                 weights: torch.Tensor | None = None) -> torch.Tensor | np.ndarray | None:
     """Solve ``(H + damping diag(H) M) delta = -g`` by Cholesky in float64 (the system is small; float64 keeps
     ill-conditioned code blocks exact), ``M = diag(weights)`` (None: the identity, Marquardt's damping). Returns
-    None when the damped matrix is not positive definite."""
+    None when the damped matrix is not positive definite. NumPy ``H``, ``g`` (a host problem's, see the module)
+    give a NumPy ``delta``."""
+    if isinstance(H, np.ndarray):
+        return _solve_damped_host(H, g, damping, min_diagonal, None if weights is None else weights.numpy())
     Hd, gd = H.to(torch.float64), g.to(torch.float64)
     diag = Hd.diagonal().clamp_min(min_diagonal)
     if weights is not None:
@@ -120,6 +126,28 @@ def solve_damped(H: torch.Tensor, g: torch.Tensor, damping: float, min_diagonal:
     if int(info) != 0:
         return None
     return -torch.cholesky_solve(gd.unsqueeze(-1), L).squeeze(-1)
+
+
+def _solve_damped_host(H: np.ndarray, g: np.ndarray, damping: float, min_diagonal: float,
+                       weights: np.ndarray | None) -> np.ndarray | None:
+    """:func:`solve_damped` in NumPy: the Cholesky factor tests the damped matrix, the two triangular systems
+    give the step (``np.linalg.solve`` on a triangular matrix: NumPy has no triangular solver)."""
+    diag = np.maximum(np.diagonal(H), min_diagonal)
+    if weights is not None:
+        diag = diag * weights
+    try:
+        L = np.linalg.cholesky(H + np.diag(damping * diag))
+    except np.linalg.LinAlgError:
+        return None
+    return -np.linalg.solve(L.T, np.linalg.solve(L, g))
+
+
+def _all_finite(x: torch.Tensor | np.ndarray) -> bool:
+    return bool(np.isfinite(x).all()) if isinstance(x, np.ndarray) else bool(torch.isfinite(x).all())
+
+
+def _norm(x: torch.Tensor | np.ndarray) -> float:
+    return float(np.linalg.norm(x)) if isinstance(x, np.ndarray) else float(x.norm())
 
 
 def damping_weights(layout: VariableLayout, cfg: SfMConfig) -> torch.Tensor | None:
@@ -176,8 +204,8 @@ def levenberg_marquardt(
                 H, g = problem.linearize(state, cache, layout, clock)
             delta = solve_damped(H, g, lam, cfg.min_diagonal, weights)
             accepted, predicted = False, math.inf  # no promise without a finite step
-            if delta is not None and bool(torch.isfinite(delta).all()):
-                d = delta.to(H.dtype)
+            if delta is not None and _all_finite(delta):
+                d = delta if isinstance(delta, np.ndarray) else delta.to(H.dtype)
                 predicted = -float(g @ d + 0.5 * d @ (H @ d))  # decrease the quadratic model promises
                 if predicted < cfg.relative_cost_tolerance * abs(cost):
                     report.reason = "predicted decrease below tolerance"
@@ -204,7 +232,7 @@ def levenberg_marquardt(
         if accepted and rel < cfg.relative_cost_tolerance:
             report.reason = "relative cost decrease below tolerance"
             break
-        if accepted and float(delta.norm()) < cfg.step_tolerance:
+        if accepted and _norm(delta) < cfg.step_tolerance:
             report.reason = "step below tolerance"
             break
         if lam > cfg.max_damping:

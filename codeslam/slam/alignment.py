@@ -18,8 +18,10 @@ prior and the extra terms (reprojection, motion prior). What makes it fast is wh
   the M valid pixels, mapped from the relative pose to the frame's pose by the adjoint (8x8), instead of the
   generic block assembly;
 * the matched keypoints' reprojection residuals (:class:`KeypointTerm`) are evaluated in the same layout with the
-  same relative pose, and the retraction takes the exponential on the host
-  (:func:`~codeslam.geometry.lie.se3_exp_host`).
+  same relative pose;
+* the eight variables, the 8x8 normal equations, the priors and the retraction live on the host in float64 NumPy
+  (:class:`TrackingState`; the exponential and logarithm in scalar arithmetic,
+  :func:`~codeslam.geometry.lie.se3_exp_floats`): tensor operations are spent on the pixels only.
 
 Measured while writing it (TUM fr1/rpy frames 1-9 against frame 0, three times, one thread; the generic solver
 70-80 ms per frame): the keyframe cached with the generic evaluation's operations, 33 ms; the (channels, N)
@@ -37,6 +39,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -51,7 +54,7 @@ from codeslam.geometry.image import (
     pyramid_cameras,
     rgb_to_gray,
 )
-from codeslam.geometry.lie import hat, se3_exp_host, se3_inverse, se3_log_host
+from codeslam.geometry.lie import se3_exp_floats, se3_inverse, se3_log_floats, se3_log_host
 from codeslam.geometry.proximity import prox_to_depth
 from codeslam.sfm.config import SfMConfig
 from codeslam.sfm.decoder import DecoderLevel, LinearDecoder
@@ -328,13 +331,16 @@ def photometric_jacobian(x: torch.Tensor, grad_B: torch.Tensor, gray_B: torch.Te
     return J
 
 
-def frame_pose_map(R_BA: torch.Tensor, t_BA: torch.Tensor) -> torch.Tensor:
+def frame_pose_map(R_BA: np.ndarray, t_BA: np.ndarray) -> np.ndarray:
     """(8, 8) ``d (xi_BA, a, b) / d (xi_B, a, b)``: with the keyframe at the origin ``T_BA = T_kf^-1`` moves by
     ``-Ad_{T_BA}`` of the frame's left increment (:func:`~codeslam.sfm.warp.relative_pose_jacobians`), ``Ad_T =
-    [[R, t^ R], [0, R]]`` (:func:`~codeslam.geometry.lie.se3_adjoint`); the affine parameters map to themselves."""
-    M = torch.eye(POSE_DIM + AFFINE_DIM, dtype=R_BA.dtype, device=R_BA.device)
+    [[R, t^ R], [0, R]]`` (:func:`~codeslam.geometry.lie.se3_adjoint`); the affine parameters map to themselves.
+    On the host in float64, as the tracker's state (:class:`TrackingState`)."""
+    tx, ty, tz = t_BA
+    t_hat = np.array([[0.0, -tz, ty], [tz, 0.0, -tx], [-ty, tx, 0.0]])
+    M = np.eye(POSE_DIM + AFFINE_DIM)
     M[:3, :3] = -R_BA
-    M[:3, 3:6] = -(hat(t_BA) @ R_BA)
+    M[:3, 3:6] = -(t_hat @ R_BA)
     M[3:6, 3:6] = -R_BA
     return M
 
@@ -400,38 +406,42 @@ class KeypointTerm:
 
 class PosePrior:
     """``0.5 d^T H d`` with ``d = log(T_i T0^-1)`` on one pose block: a :class:`~codeslam.sfm.variables.LinearPrior`
-    without its gradient term, its logarithm taken on the host (:func:`~codeslam.geometry.lie.se3_log_host`): the
-    tracker evaluates it at every iteration, and the generic path made tracking 40% slower (TUM fr1/rpy, 45 -> 63 ms
-    median per frame). ``cost``/``add_to`` read the generic state; :class:`TrackingProblem` calls ``delta_of``,
-    ``cost_of`` and ``add_delta`` with the frame's pose itself and the ``d`` of its evaluation: the same values
-    without the generic state's copies and one logarithm per iteration instead of two (with the Jacobians written
-    in place: 40 captured TUM fr1/rpy problems solved 7% faster, identical poses)."""
+    without its gradient term. ``cost``/``add_to`` read the generic state (the generic solver's path);
+    :class:`TrackingProblem` calls ``delta_of``, ``cost_of`` and ``add_delta``, which take the frame's pose and
+    the normal equations on the host (float64 NumPy, :class:`TrackingState`) and the logarithm in scalar
+    arithmetic (:func:`~codeslam.geometry.lie.se3_log_floats`): one logarithm per iteration, no tensor operations
+    (written with tensors, the prior made tracking 40% slower, TUM fr1/rpy, 45 -> 63 ms median per frame)."""
 
     def __init__(self, index: int, H: torch.Tensor, T0: torch.Tensor) -> None:
         self.block, self.H, self.T0_inv = BlockId(POSE, index), H, se3_inverse(T0)
+        self._H_host = H.detach().to(device="cpu", dtype=torch.float64).numpy()
+        self._T0_inv_host = self.T0_inv.detach().to(device="cpu", dtype=torch.float64).numpy()
 
-    def delta_of(self, T: torch.Tensor) -> torch.Tensor:
-        """(4, 4) the block's pose -> (6,) ``d = log(T T0^-1)``."""
-        return se3_log_host(T @ self.T0_inv.to(T.dtype)).to(self.H.dtype)
+    def delta_of(self, T: np.ndarray) -> np.ndarray:
+        """(4, 4) the block's pose (float64 NumPy) -> (6,) ``d = log(T T0^-1)``."""
+        return np.array(se3_log_floats((T @ self._T0_inv_host).tolist()))
 
-    def cost_of(self, d: torch.Tensor) -> torch.Tensor:
-        return 0.5 * d @ self.H @ d
+    def cost_of(self, d: np.ndarray) -> float:
+        return 0.5 * float(d @ self._H_host @ d)
 
-    def add_delta(self, H: torch.Tensor, g: torch.Tensor, sl: slice, d: torch.Tensor) -> None:
+    def add_delta(self, H: np.ndarray, g: np.ndarray, sl: slice, d: np.ndarray) -> None:
         """Add the prior's Hessian and gradient ``H d`` (``d(d)/d(increment) ~ I``) at ``d`` to the block ``sl``."""
-        H_p = self.H.to(H.dtype)
-        H[sl, sl] += H_p
-        g[sl] += H_p @ d.to(g.dtype)
+        H[sl, sl] += self._H_host
+        g[sl] += self._H_host @ d
 
     def delta(self, state: SfMState) -> torch.Tensor:
-        return self.delta_of(state.poses[self.block.index])
+        T = state.poses[self.block.index]
+        return se3_log_host(T @ self.T0_inv.to(T.dtype)).to(self.H.dtype)
 
     def cost(self, state: SfMState) -> torch.Tensor:
-        return self.cost_of(self.delta(state))
+        d = self.delta(state)
+        return 0.5 * d @ self.H @ d
 
     def add_to(self, H: torch.Tensor, g: torch.Tensor, layout: VariableLayout, state: SfMState) -> None:
         """Add the prior's Hessian and gradient in place (the generic problem's interface)."""
-        self.add_delta(H, g, layout.slice(self.block), self.delta(state))
+        sl, H_p = layout.slice(self.block), self.H.to(H.dtype)
+        H[sl, sl] += H_p
+        g[sl] += H_p @ self.delta(state).to(g.dtype)
 
 
 # ---- the problem of levenberg_marquardt ---------------------------------------------------------------------
@@ -439,30 +449,36 @@ class PosePrior:
 
 @dataclass
 class TrackingState:
-    """The free variables: T_kf (4, 4) the frame's pose in the keyframe, affine (2,) the pair's (log-gain, bias).
-    ``retract`` is :meth:`~codeslam.sfm.variables.SfMState.retract` for the layout ``[pose 1, affine 0]``."""
+    """The free variables, on the host in float64 NumPy: T_kf (4, 4) the frame's pose in the keyframe, affine (2,)
+    the pair's (log-gain, bias). ``retract`` is :meth:`~codeslam.sfm.variables.SfMState.retract` for the layout
+    ``[pose 1, affine 0]``. Eight numbers whose every tensor operation costs more than its arithmetic: kept on the
+    host, the tracker's solver spends its tensor operations on the pixels only (measured in the sixty-fifth
+    session's note, ``docs/results/slam_table.md``)."""
 
-    T_kf: torch.Tensor
-    affine: torch.Tensor
+    T_kf: np.ndarray
+    affine: np.ndarray
 
     @classmethod
     def from_sfm(cls, state: SfMState) -> TrackingState:
-        return cls(state.poses[1], state.affine[0])
+        return cls(_host(state.poses[1]), _host(state.affine[0]))
 
-    @property
-    def poses(self) -> torch.Tensor:
+    def poses(self, dtype: torch.dtype = torch.float64, device: torch.device | str = "cpu") -> torch.Tensor:
         """(2, 4, 4) the keyframe at the origin and the frame, as the generic state holds them."""
-        return torch.stack([torch.eye(4, dtype=self.T_kf.dtype, device=self.T_kf.device), self.T_kf])
+        return torch.from_numpy(np.stack([np.eye(4), self.T_kf])).to(dtype=dtype, device=device)
 
-    def to_sfm(self) -> SfMState:
+    def to_sfm(self, dtype: torch.dtype = torch.float64, device: torch.device | str = "cpu") -> SfMState:
         """The generic state (codes unused, of size 1), what the extra terms read."""
-        return SfMState(self.poses, self.T_kf.new_zeros(2, 1), self.affine.unsqueeze(0))
+        poses = self.poses(dtype, device)
+        return SfMState(poses, poses.new_zeros(2, 1), torch.from_numpy(self.affine[None]).to(poses))
 
-    def retract(self, layout: VariableLayout, delta: torch.Tensor) -> TrackingState:
+    def retract(self, layout: VariableLayout, delta: np.ndarray) -> TrackingState:
         """``T <- exp(xi) T`` (left increment) with ``xi = delta[:6]``, ``affine + delta[6:]`` (if present)."""
-        d = delta.to(self.T_kf.dtype)
-        affine = self.affine + d[POSE_DIM:] if d.shape[0] > POSE_DIM else self.affine
-        return TrackingState(se3_exp_host(d[:POSE_DIM]) @ self.T_kf, affine)
+        affine = self.affine + delta[POSE_DIM:] if delta.shape[0] > POSE_DIM else self.affine
+        return TrackingState(np.array(se3_exp_floats(delta[:POSE_DIM].tolist())) @ self.T_kf, affine)
+
+
+def _host(x: torch.Tensor) -> np.ndarray:
+    return x.detach().to(device="cpu", dtype=torch.float64).numpy()
 
 
 class TrackingProblem:
@@ -473,6 +489,10 @@ class TrackingProblem:
     ref, frame: the level of the keyframe and of the frame; cfg: the photometric settings and the affine prior;
     keypoints: the matched keypoints' reprojection residuals (None: none); terms: other costs with ``cost(state)``
     and ``add_to(H, g, layout, state)`` on the generic state (the motion prior).
+
+    The pixels' residuals and Jacobians are tensors of the keyframe's dtype and device; the state, the 8x8 normal
+    equations and the priors are float64 NumPy on the host (``linearize`` returns them so, and the solver solves
+    them there).
     """
 
     def __init__(self, ref: ReferenceLevel, frame: FrameLevel, cfg: SfMConfig, keypoints: KeypointTerm | None = None,
@@ -483,35 +503,32 @@ class TrackingProblem:
         self.terms: list = []
         for t in terms:
             (self.pose_priors if type(t) is PosePrior and t.block.index == 1 else self.terms).append(t)
-        # The affine prior's constants, made once instead of at every evaluation and linearisation.
-        sigma = torch.as_tensor(cfg.affine_prior_sigma, dtype=ref.gray.dtype, device=ref.gray.device)
-        self._affine_sigma = sigma
-        self._affine_inv_var = 1.0 / sigma**2
-        self._affine_H = torch.diag(self._affine_inv_var)
+        self._affine_inv_var = 1.0 / np.asarray(cfg.affine_prior_sigma, dtype=np.float64) ** 2  # (2,)
         self._constants = PhotometricConstants.of(cfg, ref.gray.dtype, ref.gray.device)
         self._evaluated: list[tuple[TrackingState, float, AlignmentEvaluation]] = []
 
     def evaluate(self, state: TrackingState) -> tuple[float, AlignmentEvaluation]:
         R, t = state.T_kf[:3, :3], state.T_kf[:3, 3]
         R_BA = R.T  # T_BA = T_wB^-1 T_wA = T_kf^-1 with the keyframe at the origin
-        t_BA = -(R_BA @ t)
-        affine = state.affine if self.cfg.affine_brightness else None
-        ev = photometric_residuals(self.ref, self.frame, R_BA, t_BA, affine, self.cfg, self._constants)
+        rel = torch.from_numpy(np.concatenate([R_BA, -(R_BA @ t)[:, None]], axis=1)).to(self.ref.gray)  # (3, 4)
+        R_BA_t, t_BA_t = rel[:, :3], rel[:, 3]
+        affine = torch.from_numpy(state.affine).to(self.ref.gray) if self.cfg.affine_brightness else None
+        ev = photometric_residuals(self.ref, self.frame, R_BA_t, t_BA_t, affine, self.cfg, self._constants)
         cost = ev.cost
-        if self.cfg.affine_brightness:  # Gaussian prior on (log-gain, bias)
-            cost = cost + 0.5 * (state.affine / self._affine_sigma.to(state.affine.dtype)).square().sum()
         if self.keypoints is not None:
-            ev.keypoints = self.keypoints.evaluate(R_BA, t_BA)
+            ev.keypoints = self.keypoints.evaluate(R_BA_t, t_BA_t)
             cost = cost + ev.keypoints[0]
+        c = float(cost)
+        if self.cfg.affine_brightness:  # Gaussian prior on (log-gain, bias)
+            c += 0.5 * float(self._affine_inv_var @ (state.affine * state.affine))
         if self.pose_priors:
             ev.prior_deltas = [p.delta_of(state.T_kf) for p in self.pose_priors]
             for p, d in zip(self.pose_priors, ev.prior_deltas):
-                cost = cost + p.cost_of(d).to(cost.dtype)
+                c += p.cost_of(d)
         if self.terms:
-            generic = state.to_sfm()
+            generic = state.to_sfm(self.ref.gray.dtype, self.ref.gray.device)
             for term in self.terms:
-                cost = cost + term.cost(generic).to(cost.dtype)
-        c = float(cost)
+                c += float(term.cost(generic))
         self._evaluated.append((state, c, ev))
         return c, ev
 
@@ -528,7 +545,7 @@ class TrackingProblem:
         return self.evaluate(state)
 
     def linearize(self, state: TrackingState, ev: AlignmentEvaluation, layout: VariableLayout,
-                  clock: Clock = NO_CLOCK) -> tuple[torch.Tensor, torch.Tensor]:
+                  clock: Clock = NO_CLOCK) -> tuple[np.ndarray, np.ndarray]:
         idx = ev.valid.nonzero().squeeze(-1)  # the M valid pixels; the others have no weight
         J = photometric_jacobian(ev.x.index_select(1, idx), ev.grad_B.index_select(1, idx),
                                  ev.gray_B.index_select(0, idx), ev.gain, self.frame.params)  # (8, M): xi_BA, a, b
@@ -539,20 +556,20 @@ class TrackingProblem:
             _, r, x, w = ev.keypoints
             Jk = self.keypoints.jacobian(x)  # (6, 2, M)
             Jkw = (Jk * w).reshape(POSE_DIM, -1)  # (6, 2 M), rows u then v, weighted
-            H_rel[:POSE_DIM, :POSE_DIM] += Jkw @ Jk.reshape(POSE_DIM, -1).T
-            g_rel[:POSE_DIM] += Jkw @ r.reshape(-1)
-        M = frame_pose_map(ev.R_BA, ev.t_BA)
+            H_rel[:POSE_DIM, :POSE_DIM].addmm_(Jkw, Jk.reshape(POSE_DIM, -1).T)
+            g_rel[:POSE_DIM].addmv_(Jkw, r.reshape(-1))
+        R_BA = state.T_kf[:3, :3].T
+        M = frame_pose_map(R_BA, -(R_BA @ state.T_kf[:3, 3]))
         n = layout.dim  # the frame's pose, then (with affine brightness) the pair's affine parameters
-        H = (M.T @ H_rel @ M)[:n, :n]
-        g = (M.T @ g_rel)[:n]
+        H = (M.T @ _host(H_rel) @ M)[:n, :n]
+        g = (M.T @ _host(g_rel))[:n]
         if self.cfg.affine_brightness:
-            inv_var = self._affine_inv_var.to(H.dtype)
-            H[POSE_DIM:, POSE_DIM:] += self._affine_H.to(H.dtype)
-            g[POSE_DIM:] += inv_var * state.affine.to(g.dtype)
+            H[POSE_DIM:, POSE_DIM:] += np.diag(self._affine_inv_var)
+            g[POSE_DIM:] += self._affine_inv_var * state.affine
         for p, d in zip(self.pose_priors, ev.prior_deltas or ()):  # the deltas of the evaluation at this state
             p.add_delta(H, g, layout.slice(p.block), d)
-        if self.terms:
+        if self.terms:  # tensors that share H's and g's memory: the terms add in place
             generic = state.to_sfm()
             for term in self.terms:
-                term.add_to(H, g, layout, generic)
+                term.add_to(torch.from_numpy(H), torch.from_numpy(g), layout, generic)
         return H, g

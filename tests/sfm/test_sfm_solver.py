@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 from sfm_scene import look_pose, make_frames, render
@@ -169,6 +170,21 @@ def test_an_indefinite_system_is_refused_by_the_cholesky_solve():
     H = torch.tensor([[2.0, 1.0], [1.0, 3.0]], dtype=D)
     delta = solve_damped(H, torch.tensor([1.0, -1.0], dtype=D), 0.0, 1e-6)
     torch.testing.assert_close(H @ delta, torch.tensor([-1.0, 1.0], dtype=D))
+
+
+def test_a_host_system_is_solved_on_the_host_as_the_tensor_one():
+    """NumPy normal equations (a small problem that keeps its state on the host, the tracker's) give a NumPy step:
+    the tensor path's step, weights included, and None for a system that is not positive definite."""
+    g = torch.Generator().manual_seed(5)
+    A = torch.randn(8, 8, generator=g, dtype=D)
+    H, r = A @ A.T + 0.1 * torch.eye(8, dtype=D), torch.randn(8, generator=g, dtype=D)
+    w = torch.linspace(1.0, 3.0, 8, dtype=D)
+    for lam, weights in ((0.0, None), (1e-2, None), (0.5, w)):
+        step = solve_damped(H.numpy(), r.numpy(), lam, 1e-6, weights)
+        assert isinstance(step, np.ndarray)
+        torch.testing.assert_close(torch.from_numpy(step), solve_damped(H, r, lam, 1e-6, weights), rtol=1e-10,
+                                   atol=1e-12)
+    assert solve_damped(np.diag([1.0, -2.0]), np.ones(2), 1e-3, 1e-6) is None
 
 
 class _CodeAffineQuadratic:

@@ -72,7 +72,7 @@ def _level_problem(lvl=1, gradient_mode="interpolant", with_keypoints=True, mask
     frame = FramePyramid(frames[2].gray, frames[2].camera, None, (lvl,), D, torch.device("cpu")).levels[lvl]
     T_true = se3_inverse(frames[0].pose) @ frames[2].pose
     T_kf = se3_exp(torch.tensor([0.004, -0.003, 0.002, 0.003, -0.004, 0.002], dtype=D)) @ T_true
-    state = TrackingState(T_kf, torch.tensor([0.05, -0.02], dtype=D))
+    state = TrackingState(T_kf.numpy(), torch.tensor([0.05, -0.02], dtype=D).numpy())
     kp = KeypointTerm(_keypoints(frames, 2), D, torch.device("cpu")) if with_keypoints else None
     cfg = tracker.sfm_cfg if masked_rows is None else replace(tracker.sfm_cfg, masked_rows=masked_rows)
     return TrackingProblem(ref, frame, cfg, kp), state
@@ -85,15 +85,15 @@ def _relative(T_kf):
 
 def test_photometric_jacobian_matches_autograd_float64():
     problem, state = _level_problem()
-    R_BA, t_BA = _relative(state.T_kf)
-    ev = photometric_residuals(problem.ref, problem.frame, R_BA, t_BA, state.affine, problem.cfg)
+    R_BA, t_BA = _relative(torch.from_numpy(state.T_kf))
+    ev = photometric_residuals(problem.ref, problem.frame, R_BA, t_BA, torch.from_numpy(state.affine), problem.cfg)
     valid = ev.valid
     J = photometric_jacobian(ev.x[:, valid], ev.grad_B[:, valid], ev.gray_B[valid], ev.gain, problem.frame.params)
 
     def residuals(theta):  # left increment of T_BA, then the affine parameters
-        T = se3_exp(theta[:6]) @ se3_inverse(state.T_kf)
-        return photometric_residuals(problem.ref, problem.frame, T[:3, :3], T[:3, 3], state.affine + theta[6:],
-                                     problem.cfg).r
+        T = se3_exp(theta[:6]) @ se3_inverse(torch.from_numpy(state.T_kf))
+        affine = torch.from_numpy(state.affine) + theta[6:]
+        return photometric_residuals(problem.ref, problem.frame, T[:3, :3], T[:3, 3], affine, problem.cfg).r
 
     J_auto = torch.autograd.functional.jacobian(residuals, torch.zeros(8, dtype=D))  # (N, 8)
     assert int(valid.sum()) > 0.5 * valid.numel() and ev.r[valid].abs().max() > 0.05  # away from the optimum
@@ -104,12 +104,12 @@ def test_photometric_jacobian_matches_autograd_float64():
 def test_keypoint_jacobian_matches_autograd_float64():
     problem, state = _level_problem()
     kp = problem.keypoints
-    R_BA, t_BA = _relative(state.T_kf)
+    R_BA, t_BA = _relative(torch.from_numpy(state.T_kf))
     _, r, x, _ = kp.evaluate(R_BA, t_BA)
     J = kp.jacobian(x)  # (6, 2, M)
 
     def residuals(xi):
-        T = se3_exp(xi) @ se3_inverse(state.T_kf)
+        T = se3_exp(xi) @ se3_inverse(torch.from_numpy(state.T_kf))
         return kp.evaluate(T[:3, :3], T[:3, 3])[1]  # (2, M)
 
     J_auto = torch.autograd.functional.jacobian(residuals, torch.zeros(6, dtype=D))  # (2, M, 6)
@@ -123,7 +123,7 @@ def test_keypoint_inliers_are_the_reprojection_terms_own():
     kp = KeypointTerm(term, D, torch.device("cpu"))
     T_kf = se3_exp(torch.tensor([0.01, -0.005, 0.0, 0.002, 0.0, -0.003], dtype=D)) @ (
         se3_inverse(frames[0].pose) @ frames[2].pose)
-    state = TrackingState(T_kf, torch.zeros(2, dtype=D))
+    state = TrackingState(T_kf.numpy(), torch.zeros(2, dtype=D).numpy())
     R_BA, t_BA = _relative(T_kf)
     _, r, x, _ = kp.evaluate(R_BA, t_BA)
     for threshold in (1.0, 3.0, 6.0):
@@ -143,8 +143,9 @@ def test_the_constants_a_problem_makes_once_give_its_evaluations_bit_for_bit(mas
     uv = torch.rand(7, 2, dtype=D, generator=torch.Generator().manual_seed(3)) * 60.0
     assert torch.equal(pixels_to_grid(uv, frame.height, frame.width, frame.grid_scale),
                        pixels_to_grid(uv, frame.height, frame.width))
-    R_BA, t_BA = _relative(state.T_kf)
-    made_here = photometric_residuals(problem.ref, problem.frame, R_BA, t_BA, state.affine, problem.cfg)
+    R_BA, t_BA = _relative(torch.from_numpy(state.T_kf))
+    affine = torch.from_numpy(state.affine)
+    made_here = photometric_residuals(problem.ref, problem.frame, R_BA, t_BA, affine, problem.cfg)
     _, ev = problem.evaluate(state)
     for name in ("r", "valid", "w", "sigma", "cost", "row_cost", "gray_B", "grad_B", "x"):
         assert torch.equal(getattr(ev, name), getattr(made_here, name)), name
@@ -171,13 +172,13 @@ def test_normal_equations_are_the_dense_irls_system_and_the_cost_gradient(with_k
     # judges them on, over the rows valid before and after: TrackingProblem.cost_change).
     problem, state = _level_problem(with_keypoints=with_keypoints, masked_rows=masked_rows)
     cost, ev = problem.evaluate(state)
-    H, g = problem.linearize(state, ev, LAYOUT)
+    H, g = (torch.from_numpy(a) for a in problem.linearize(state, ev, LAYOUT))  # float64 on the host
     sig = torch.tensor(problem.cfg.affine_prior_sigma, dtype=D)
 
     def pieces(theta):  # left increment of the frame's pose T_kf, then the affine parameters
-        T_kf = se3_exp(theta[:6]) @ state.T_kf
+        T_kf = se3_exp(theta[:6]) @ torch.from_numpy(state.T_kf)
         R_BA, t_BA = _relative(T_kf)
-        affine = state.affine + theta[6:]
+        affine = torch.from_numpy(state.affine) + theta[6:]
         e = photometric_residuals(problem.ref, problem.frame, R_BA, t_BA, affine, problem.cfg)
         others = 0.5 * (affine / sig).square().sum()
         r = [e.r]
