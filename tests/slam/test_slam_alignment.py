@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 from dataclasses import replace
 
+import numpy as np
 import pytest
 import torch
 from slam_scene import small_config, synth_frames
@@ -19,6 +20,7 @@ from codeslam.sfm.variables import CODE, POSE, BlockId, VariableLayout
 from codeslam.slam.alignment import (
     FramePyramid,
     KeypointTerm,
+    PosePrior,
     TrackingProblem,
     TrackingReference,
     TrackingState,
@@ -206,6 +208,36 @@ def test_normal_equations_are_the_dense_irls_system_and_the_cost_gradient(with_k
     W = torch.cat(w)
     H_dense = J.T @ (W[:, None] * J) + torch.diag(torch.cat([torch.zeros(6, dtype=D), 1.0 / sig**2]))
     torch.testing.assert_close(H, H_dense, atol=1e-8, rtol=1e-8)
+
+
+class _SeenAsGeneric:
+    """A term the tracking problem knows only by the generic interface (``cost``, ``add_to`` on the generic
+    state), as it takes any term that is neither the keypoints' nor a prior on the frame's pose."""
+
+    def __init__(self, term):
+        self.term = term
+
+    def cost(self, state):
+        return self.term.cost(state)
+
+    def add_to(self, H, g, layout, state):
+        self.term.add_to(H, g, layout, state)
+
+
+def test_a_term_through_the_generic_interface_adds_what_the_tracker_adds_on_the_host():
+    # The frame's pose prior, added by the problem on the host (float64 NumPy) or through the generic interface on
+    # the keyframe's tensors: the same cost and normal equations.
+    problem, state = _level_problem()
+    T_pred = se3_exp(torch.tensor([0.01, 0.0, -0.005, 0.0, 0.004, 0.0], dtype=D)) @ torch.from_numpy(state.T_kf)
+    prior = PosePrior(1, torch.diag(torch.tensor([1e5] * 3 + [3e5] * 3, dtype=D)), T_pred)
+    host, generic = (TrackingProblem(problem.ref, problem.frame, problem.cfg, problem.keypoints, [t])
+                     for t in (prior, _SeenAsGeneric(prior)))
+    assert host.pose_priors and not host.terms and generic.terms and not generic.pose_priors
+    (c_h, ev_h), (c_g, ev_g) = host.evaluate(state), generic.evaluate(state)
+    assert c_h > problem.evaluate(state)[0] + 1.0  # the prior is far enough from the state to count
+    assert abs(c_h - c_g) <= 1e-12 * c_h
+    for a, b in zip(host.linearize(state, ev_h, LAYOUT), generic.linearize(state, ev_g, LAYOUT)):
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-9)
 
 
 def _pose_difference(a, b, depth):
