@@ -67,6 +67,7 @@ from codeslam.sfm.residuals import (
     step_cost_change,
 )
 from codeslam.sfm.variables import AFFINE_DIM, POSE, POSE_DIM, BlockId, SfMState, VariableLayout
+from codeslam.sfm.warp import cross_columns
 from codeslam.slam.reprojection import ReprojectionTerm
 
 
@@ -211,27 +212,25 @@ class AlignmentEvaluation:
     """The photometric residuals of one level at a state, and what their Jacobian reuses (N pixels).
 
     r: (N,) residuals (0 where masked); valid: (N,) bool; w: (N,) IRLS weights ``slant rho'(s)/s / sigma^2`` (0
-    where masked); sigma: () the photometric sigma; R_BA (3, 3), t_BA (3,): the relative pose; x: (3, N) the
-    points in B; gray_B: (N,) I_B[v]; grad_B: (2, N) gradient of I_B at v (d/du, d/dv); gain: () exp(a); cost: ()
-    the robust photometric cost (masked rows priced as ``cfg.masked_rows`` says, loss (i)); keypoints: what
-    :meth:`KeypointTerm.evaluate` gave at the same pose (None without keypoints); prior_deltas: each pose prior's
-    ``d`` at the same pose (:meth:`PosePrior.delta_of`); row_cost: (N,) each valid pixel's robust cost (0 where
-    masked), for :func:`~codeslam.sfm.residuals.step_cost_change`.
+    where masked); sigma: () the photometric sigma; x: (3, N) the points in B; gray_B: (N,) I_B[v]; grad_B: (2, N)
+    gradient of I_B at v (d/du, d/dv); gain: () exp(a); cost: () the robust photometric cost (masked rows priced as
+    ``cfg.masked_rows`` says, loss (i)); keypoints: what :meth:`KeypointTerm.evaluate` gave at the same pose (None
+    without keypoints); prior_deltas: each pose prior's ``d`` at the same pose (:meth:`PosePrior.delta_of`);
+    row_cost: (N,) each valid pixel's robust cost (0 where masked), for
+    :func:`~codeslam.sfm.residuals.step_cost_change`.
     """
 
     r: torch.Tensor
     valid: torch.Tensor
     w: torch.Tensor
     sigma: torch.Tensor
-    R_BA: torch.Tensor
-    t_BA: torch.Tensor
     x: torch.Tensor
     gray_B: torch.Tensor
     grad_B: torch.Tensor
     gain: torch.Tensor
     cost: torch.Tensor
     keypoints: tuple[torch.Tensor, ...] | None = None
-    prior_deltas: list[torch.Tensor] | None = None
+    prior_deltas: list[np.ndarray] | None = None
     row_cost: torch.Tensor | None = None
 
 
@@ -303,7 +302,7 @@ def photometric_residuals(ref: ReferenceLevel, frame: FrameLevel, R_BA: torch.Te
         cost = rows.sum() + c.half_kk * (N - vf.sum())  # masked rows cost rho(k) (loss (i))
     else:
         cost = masked_mean_cost(rows.sum(), vf.sum(), N, k)  # masked rows at the valid rows' mean (loss (i))
-    return AlignmentEvaluation(r, valid, w, sigma, R_BA, t_BA, x, gray_B, grad_B, gain, cost, row_cost=rows)
+    return AlignmentEvaluation(r, valid, w, sigma, x, gray_B, grad_B, gain, cost, row_cost=rows)
 
 
 def photometric_jacobian(x: torch.Tensor, grad_B: torch.Tensor, gray_B: torch.Tensor, gain: torch.Tensor,
@@ -400,8 +399,13 @@ class KeypointTerm:
         torch.mul(-fx * x[0] * inv_z, inv_z, out=J[2, 0])
         torch.mul(fy, inv_z, out=J[1, 1])  # d v / d x = (0, fy/z, -fy y/z^2)
         torch.mul(-fy * x[1] * inv_z, inv_z, out=J[2, 1])
-        torch.linalg.cross(x.unsqueeze(1).expand(3, 2, x.shape[1]), J[:3], dim=0, out=J[3:])  # x x a
+        cross_columns(x.unsqueeze(0), J[:3].transpose(0, 1), out=J[3:].transpose(0, 1))  # x x a, per row u, v
         return J  # (6, 2, M)
+
+
+def _host(x: torch.Tensor) -> np.ndarray:
+    """A tensor as float64 NumPy on the host (the tracker's state and 8x8 algebra)."""
+    return x.detach().to(device="cpu", dtype=torch.float64).numpy()
 
 
 class PosePrior:
@@ -414,8 +418,7 @@ class PosePrior:
 
     def __init__(self, index: int, H: torch.Tensor, T0: torch.Tensor) -> None:
         self.block, self.H, self.T0_inv = BlockId(POSE, index), H, se3_inverse(T0)
-        self._H_host = H.detach().to(device="cpu", dtype=torch.float64).numpy()
-        self._T0_inv_host = self.T0_inv.detach().to(device="cpu", dtype=torch.float64).numpy()
+        self._H_host, self._T0_inv_host = _host(H), _host(self.T0_inv)
 
     def delta_of(self, T: np.ndarray) -> np.ndarray:
         """(4, 4) the block's pose (float64 NumPy) -> (6,) ``d = log(T T0^-1)``."""
@@ -462,23 +465,22 @@ class TrackingState:
     def from_sfm(cls, state: SfMState) -> TrackingState:
         return cls(_host(state.poses[1]), _host(state.affine[0]))
 
-    def poses(self, dtype: torch.dtype = torch.float64, device: torch.device | str = "cpu") -> torch.Tensor:
-        """(2, 4, 4) the keyframe at the origin and the frame, as the generic state holds them."""
-        return torch.from_numpy(np.stack([np.eye(4), self.T_kf])).to(dtype=dtype, device=device)
-
     def to_sfm(self, dtype: torch.dtype = torch.float64, device: torch.device | str = "cpu") -> SfMState:
-        """The generic state (codes unused, of size 1), what the extra terms read."""
-        poses = self.poses(dtype, device)
+        """The generic state (the keyframe at the origin and the frame; codes unused, of size 1), what the extra
+        terms read."""
+        poses = torch.from_numpy(np.stack([np.eye(4), self.T_kf])).to(dtype=dtype, device=device)
         return SfMState(poses, poses.new_zeros(2, 1), torch.from_numpy(self.affine[None]).to(poses))
+
+    def relative(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(R_BA, t_BA)`` (3, 3), (3,) of ``T_BA = T_wB^-1 T_wA = T_kf^-1`` (the keyframe at the origin): what maps
+        the keyframe's points into the frame."""
+        R_BA = self.T_kf[:3, :3].T
+        return R_BA, -(R_BA @ self.T_kf[:3, 3])
 
     def retract(self, layout: VariableLayout, delta: np.ndarray) -> TrackingState:
         """``T <- exp(xi) T`` (left increment) with ``xi = delta[:6]``, ``affine + delta[6:]`` (if present)."""
         affine = self.affine + delta[POSE_DIM:] if delta.shape[0] > POSE_DIM else self.affine
         return TrackingState(np.array(se3_exp_floats(delta[:POSE_DIM].tolist())) @ self.T_kf, affine)
-
-
-def _host(x: torch.Tensor) -> np.ndarray:
-    return x.detach().to(device="cpu", dtype=torch.float64).numpy()
 
 
 class TrackingProblem:
@@ -508,9 +510,8 @@ class TrackingProblem:
         self._evaluated: list[tuple[TrackingState, float, AlignmentEvaluation]] = []
 
     def evaluate(self, state: TrackingState) -> tuple[float, AlignmentEvaluation]:
-        R, t = state.T_kf[:3, :3], state.T_kf[:3, 3]
-        R_BA = R.T  # T_BA = T_wB^-1 T_wA = T_kf^-1 with the keyframe at the origin
-        rel = torch.from_numpy(np.concatenate([R_BA, -(R_BA @ t)[:, None]], axis=1)).to(self.ref.gray)  # (3, 4)
+        R_BA, t_BA = state.relative()
+        rel = torch.from_numpy(np.concatenate([R_BA, t_BA[:, None]], axis=1)).to(self.ref.gray)  # (3, 4)
         R_BA_t, t_BA_t = rel[:, :3], rel[:, 3]
         affine = torch.from_numpy(state.affine).to(self.ref.gray) if self.cfg.affine_brightness else None
         ev = photometric_residuals(self.ref, self.frame, R_BA_t, t_BA_t, affine, self.cfg, self._constants)
@@ -558,8 +559,7 @@ class TrackingProblem:
             Jkw = (Jk * w).reshape(POSE_DIM, -1)  # (6, 2 M), rows u then v, weighted
             H_rel[:POSE_DIM, :POSE_DIM].addmm_(Jkw, Jk.reshape(POSE_DIM, -1).T)
             g_rel[:POSE_DIM].addmv_(Jkw, r.reshape(-1))
-        R_BA = state.T_kf[:3, :3].T
-        M = frame_pose_map(R_BA, -(R_BA @ state.T_kf[:3, 3]))
+        M = frame_pose_map(*state.relative())
         n = layout.dim  # the frame's pose, then (with affine brightness) the pair's affine parameters
         H = (M.T @ _host(H_rel) @ M)[:n, :n]
         g = (M.T @ _host(g_rel))[:n]
